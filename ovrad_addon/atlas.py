@@ -1,0 +1,324 @@
+"""The atlas of overlapping patches: its arrays, the sheets it lives on, and how it is built."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, fields, replace
+
+import numpy as np
+
+from . import names
+from .errors import OvradError
+from .placement import Placed, place_curved, place_planar
+from .rays import make_rays
+from .settings import AtlasSettings
+from .surfaces import Charts, Surfaces, find_charts
+
+Progress = Callable[[float, str], bool] | None
+
+
+@dataclass(frozen=True)
+class Atlas:
+    """n patches; every array has n rows.
+
+    centers (n, 3), normals (n, 3) unit, tangents (n, 3) unit in-plane axis, radii (n,) (disk
+    radius, or half the side of a square), shapes (n,) int8 (0 disk, 1 square), sheet (n,)
+    surface sheet index, source_object (n,) index into the surfaces' objects, thickness (n,)
+    tolerated distance from the patch plane, min_cos (n,) least normal agreement,
+    support_area (n,) area A_h of D_h on the surface, effective_area (n,) c_hh,
+    overlap_count (n,) other patches overlapping, random (n,) stable value in [0, 1).
+    """
+
+    centers: np.ndarray
+    normals: np.ndarray
+    tangents: np.ndarray
+    radii: np.ndarray
+    shapes: np.ndarray
+    sheet: np.ndarray
+    source_object: np.ndarray
+    thickness: np.ndarray
+    min_cos: np.ndarray
+    support_area: np.ndarray
+    effective_area: np.ndarray
+    overlap_count: np.ndarray
+    random: np.ndarray
+    beta: str = "smooth"
+
+    def __len__(self) -> int:
+        return len(self.centers)
+
+    @property
+    def bounding_radii(self) -> np.ndarray:
+        """(n,) radius of the smallest ball around the centre holding the whole patch."""
+        return self.radii * np.where(self.shapes == names.SHAPE_SQUARE, np.sqrt(2.0), 1.0)
+
+    def select(self, mask) -> Atlas:
+        """The patches where mask is true (or the given indices), same beta."""
+        kw = {f.name: getattr(self, f.name) for f in fields(self)}
+        for k, v in kw.items():
+            if isinstance(v, np.ndarray):
+                kw[k] = v[mask]
+        return Atlas(**kw)
+
+    def point_attributes(self) -> dict[str, tuple[np.ndarray, str]]:
+        """Blender POINT attributes: name -> (array, attribute type)."""
+        return {
+            names.NORMAL: (self.normals, "FLOAT_VECTOR"),
+            names.RADIUS: (self.radii, "FLOAT"),
+            names.SHAPE: (self.shapes.astype(np.int32), "INT"),
+            names.TANGENT: (self.tangents, "FLOAT_VECTOR"),
+            names.AREA: (self.effective_area, "FLOAT"),
+            names.OVERLAP: (self.overlap_count.astype(np.int32), "INT"),
+            names.SHEET: (self.sheet.astype(np.int32), "INT"),
+            names.THICKNESS: (self.thickness, "FLOAT"),
+            names.MIN_COS: (self.min_cos, "FLOAT"),
+            names.SUPPORT_AREA: (self.support_area, "FLOAT"),
+            names.RANDOM: (self.random, "FLOAT"),
+        }
+
+    @staticmethod
+    def from_point_attributes(centers, attributes: dict, beta: str, source_object=None) -> Atlas:
+        """Rebuild an atlas from point positions and the attributes point_attributes() wrote."""
+        c = np.asarray(centers, np.float64).reshape(-1, 3)
+
+        def get(name, shape=None, dtype=np.float64):
+            a = np.asarray(attributes[name], dtype)
+            return a.reshape(shape) if shape else a
+
+        n = len(c)
+        return Atlas(
+            centers=c,
+            normals=get(names.NORMAL, (-1, 3)),
+            tangents=get(names.TANGENT, (-1, 3)),
+            radii=get(names.RADIUS),
+            shapes=get(names.SHAPE, dtype=np.int8),
+            sheet=get(names.SHEET, dtype=np.int64),
+            source_object=np.zeros(n, np.int64)
+            if source_object is None
+            else np.asarray(source_object, np.int64),
+            thickness=get(names.THICKNESS),
+            min_cos=get(names.MIN_COS),
+            support_area=get(names.SUPPORT_AREA),
+            effective_area=get(names.AREA),
+            overlap_count=get(names.OVERLAP, dtype=np.int64),
+            random=get(names.RANDOM),
+            beta=beta,
+        )
+
+
+@dataclass(frozen=True)
+class SurfaceIndex:
+    """Surfaces with their charts, sheets and a ray backend: what patches are placed on.
+
+    sheet_table (n_charts, 2): sheet index of each chart's front (column 0) and back (column 1)
+    side, -1 where that side has no patches. sheet_chart, sheet_side (n_sheets,).
+    """
+
+    surfaces: Surfaces
+    charts: Charts
+    planar: np.ndarray  # (n_charts,) bool
+    sheet_table: np.ndarray
+    sheet_chart: np.ndarray
+    sheet_side: np.ndarray
+    rays: object
+
+    def sheet_of(self, triangle: np.ndarray, side: np.ndarray) -> np.ndarray:
+        """Sheet index (or -1) of surface points on `triangle` seen from `side` (+1 front, -1 back)."""
+        ch = self.charts.chart[triangle]
+        out = self.sheet_table[np.maximum(ch, 0), (np.asarray(side) < 0).astype(np.int64)]
+        return np.where((ch >= 0) & (triangle >= 0), out, -1)
+
+
+def _chart_planarity(surfaces: Surfaces, charts: Charts) -> tuple[np.ndarray, np.ndarray]:
+    """Per chart: area-weighted mean normal (n_charts, 3) and whether all its triangles are coplanar."""
+    nc = charts.count
+    ok = charts.chart >= 0
+    ch = charts.chart[ok]
+    w = charts.areas[ok]
+    ns = np.stack([np.bincount(ch, weights=charts.normals[ok, j] * w, minlength=nc) for j in range(3)], 1)
+    mean_n = ns / np.maximum(np.linalg.norm(ns, axis=1, keepdims=True), 1e-300)
+    cen = surfaces.corners[ok].mean(axis=1)
+    csum = np.stack([np.bincount(ch, weights=cen[:, j] * w, minlength=nc) for j in range(3)], 1)
+    centroid = csum / np.maximum(np.bincount(ch, weights=w, minlength=nc)[:, None], 1e-300)
+    dev = np.abs(np.einsum("tvk,tk->tv", surfaces.corners[ok] - centroid[ch][:, None], mean_n[ch])).max(
+        axis=1
+    )
+    worst = np.zeros(nc)
+    np.maximum.at(worst, ch, dev)
+    tilt = np.ones(nc)
+    np.minimum.at(tilt, ch, np.einsum("ij,ij->i", charts.normals[ok], mean_n[ch]))
+    planar = (worst <= 1e-6 * max(surfaces.extent, 1e-300)) & (tilt >= 1 - 1e-9)
+    return mean_n, planar
+
+
+def _back_side_sees_something(surfaces: Surfaces, charts: Charts, rays, chart_ids: np.ndarray) -> np.ndarray:
+    """For open charts: does any probe ray from the back side hit scene geometry? (bool per chart id)."""
+    rng = np.random.default_rng(12345)
+    extent = max(surfaces.extent, 1e-300)
+    result = np.zeros(len(chart_ids), bool)
+    per_chart, per_point = 48, 6
+    origins, dirs, owner = [], [], []
+    for j, c in enumerate(chart_ids):
+        tri = np.flatnonzero(charts.chart == c)
+        p = charts.areas[tri] / charts.areas[tri].sum()
+        pick = tri[rng.choice(len(tri), size=per_chart, p=p)]
+        u, v = rng.random(per_chart), rng.random(per_chart)
+        f = u + v > 1
+        u[f], v[f] = 1 - u[f], 1 - v[f]
+        cc = surfaces.corners[pick]
+        pts = cc[:, 0] + u[:, None] * (cc[:, 1] - cc[:, 0]) + v[:, None] * (cc[:, 2] - cc[:, 0])
+        n = -charts.normals[pick]
+        d = rng.normal(size=(per_chart, per_point, 3))
+        d /= np.linalg.norm(d, axis=2, keepdims=True)
+        d = np.where(np.einsum("pkj,pj->pk", d, n)[..., None] < 0, -d, d)
+        origins.append(np.repeat(pts + 1e-6 * extent * n, per_point, axis=0))
+        dirs.append(d.reshape(-1, 3))
+        owner.append(np.full(per_chart * per_point, j))
+    if not origins:
+        return result
+    hit = rays.occluded(np.concatenate(origins), np.concatenate(dirs), np.inf)
+    np.logical_or.at(result, np.concatenate(owner), hit)
+    return result
+
+
+def index_surfaces(surfaces: Surfaces, settings: AtlasSettings, backend: str = "auto") -> SurfaceIndex:
+    """Find charts, decide which sides get patches (see ObjectSettings.sides), build the ray backend."""
+    charts = find_charts(surfaces, settings.crease_angle)
+    if charts.count == 0:
+        raise OvradError("every face has zero area: nothing to cover with patches")
+    rays = make_rays(surfaces.vertices, surfaces.triangles, backend)
+    _, planar = _chart_planarity(surfaces, charts)
+    nc = charts.count
+    chart_obj = np.zeros(nc, np.int64)
+    ok = charts.chart >= 0
+    chart_obj[charts.chart[ok]] = surfaces.object_index[ok]
+    front = surfaces.receiver[chart_obj].copy()
+    back = np.zeros(nc, bool)
+    for c in range(nc):
+        if not front[c]:
+            continue
+        mode = settings.object_settings(int(chart_obj[c])).sides
+        back[c] = mode == "BOTH" or (mode == "AUTO" and not charts.closed[c])
+    auto_open = np.flatnonzero(
+        back & np.array([settings.object_settings(int(o)).sides == "AUTO" for o in chart_obj], bool)
+    )
+    if len(auto_open):
+        back[auto_open] = _back_side_sees_something(surfaces, charts, rays, auto_open)
+    table = np.full((nc, 2), -1, np.int64)
+    sides = np.stack([front, back], 1)
+    table[sides] = np.arange(int(sides.sum()))
+    sheet_chart, sheet_col = np.nonzero(sides)
+    return SurfaceIndex(
+        surfaces=surfaces,
+        charts=charts,
+        planar=planar,
+        sheet_table=table,
+        sheet_chart=sheet_chart,
+        sheet_side=np.where(sheet_col == 0, 1, -1),
+        rays=rays,
+    )
+
+
+def _sheet_spacing(index: SurfaceIndex, settings: AtlasSettings) -> np.ndarray:
+    """Grid spacing per sheet: from patch_size, or chosen so the whole scene gets about patch_count."""
+    s = index.surfaces
+    ch = index.charts
+    ok = ch.chart >= 0
+    chart_area = np.bincount(ch.chart[ok], weights=ch.areas[ok], minlength=ch.count)
+    chart_obj = np.zeros(ch.count, np.int64)
+    chart_obj[ch.chart[ok]] = s.object_index[ok]
+    density = np.array([settings.object_settings(int(o)).density for o in chart_obj])[index.sheet_chart]
+    area = chart_area[index.sheet_chart]
+    if settings.patch_size is not None:
+        base = settings.patch_size
+    else:
+        base = float(np.sqrt(np.sum(area * density**2) / settings.patch_count))
+    return base / density
+
+
+def _place_all(index: SurfaceIndex, settings: AtlasSettings, spacing: np.ndarray) -> tuple[list[Placed], int]:
+    s = index.surfaces
+    ch = index.charts
+    ext = s.extent
+    out = []
+    total = 0
+    for k, (c, side) in enumerate(zip(index.sheet_chart, index.sheet_side)):
+        tri = np.flatnonzero(ch.chart == c)
+        corners = s.corners[tri]
+        if side < 0:
+            corners = corners[:, ::-1]
+        if index.planar[c]:
+            nrm = side * (ch.normals[tri] * ch.areas[tri, None]).sum(axis=0)
+            p = place_planar(corners, nrm, spacing[k], settings.overlap, settings.shapes, ext)
+        else:
+            p = place_curved(corners, side * ch.normals[tri], spacing[k], settings.overlap, ext, seed=int(k))
+        out.append(p)
+        total += len(p.radii)
+        if total > settings.max_patches:
+            break
+    return out, total
+
+
+def _too_many(count: int, settings: AtlasSettings) -> OvradError:
+    return OvradError(
+        f"these settings would make {count:,}+ patches, more than the limit of {settings.max_patches:,}; "
+        "use a larger patch size or a smaller patch count/density, or raise the patch limit"
+    )
+
+
+def build_atlas(
+    surfaces: Surfaces, settings: AtlasSettings, progress: Progress = None, backend: str = "auto"
+) -> Atlas:
+    """Cover the receiving surfaces with overlapping patches and integrate their overlaps (C).
+
+    progress(fraction, message) may return False to cancel (raises OvradError).
+    """
+    from .overlap import overlap_matrix
+
+    def report(f: float, msg: str) -> None:
+        if progress is not None and progress(f, msg) is False:
+            raise OvradError("cancelled")
+
+    report(0.0, "finding charts")
+    index = index_surfaces(surfaces, settings, backend)
+    if len(index.sheet_chart) == 0:
+        raise OvradError("no receiving surface: mark at least one object as a receiver")
+    spacing = _sheet_spacing(index, settings)
+    report(0.1, "placing patches")
+    placed, total = _place_all(index, settings, spacing)
+    if settings.patch_size is None and total <= settings.max_patches:
+        # Boundary cells add to the count; one correction brings it near the target.
+        spacing = spacing * np.sqrt(total / settings.patch_count)
+        placed, total = _place_all(index, settings, spacing)
+    if total > settings.max_patches:
+        raise _too_many(total, settings)
+    sheet = np.concatenate([np.full(len(p.radii), k) for k, p in enumerate(placed)])
+    chart_obj = np.zeros(index.charts.count, np.int64)
+    ok = index.charts.chart >= 0
+    chart_obj[index.charts.chart[ok]] = surfaces.object_index[ok]
+    n = total
+    rng = np.random.default_rng(7)
+    atlas = Atlas(
+        centers=np.concatenate([p.centers for p in placed]),
+        normals=np.concatenate([p.normals for p in placed]),
+        tangents=np.concatenate([p.tangents for p in placed]),
+        radii=np.concatenate([p.radii for p in placed]),
+        shapes=np.concatenate([p.shapes for p in placed]),
+        sheet=sheet,
+        source_object=chart_obj[index.sheet_chart[sheet]],
+        thickness=np.concatenate([p.thickness for p in placed]),
+        min_cos=np.concatenate([p.min_cos for p in placed]),
+        support_area=np.zeros(n),
+        effective_area=np.zeros(n),
+        overlap_count=np.zeros(n, np.int64),
+        random=rng.random(n),
+        beta=settings.beta,
+    )
+    report(0.2, f"integrating overlaps of {n} patches")
+    C, support = overlap_matrix(
+        atlas, index, settings.quadrature, progress=lambda f: report(0.2 + 0.8 * f, "integrating overlaps")
+    )
+    nz = (C + C.T).tocsr()
+    nz.data[:] = 1
+    counts = np.diff(nz.indptr) - (C.diagonal() > 0)
+    return replace(atlas, support_area=support, effective_area=C.diagonal().copy(), overlap_count=counts)

@@ -1,0 +1,27 @@
+"""Names of every attribute, property and data block ovrad writes into a Blender file."""
+
+# POINT attributes on an atlas object (one point per patch).
+NORMAL = "ovrad_normal"  # FLOAT_VECTOR, unit normal of the patch plane
+RADIUS = "ovrad_radius"  # FLOAT, disk radius or half the side of a square
+SHAPE = "ovrad_shape"  # INT, 0 disk, 1 square
+TANGENT = "ovrad_tangent"  # FLOAT_VECTOR, first in-plane axis (a square's side direction)
+AREA = "ovrad_area"  # FLOAT, effective area c_kk = integral of alpha_k over the surface
+OVERLAP = "ovrad_overlap"  # INT, how many other patches overlap this one
+SHEET = "ovrad_sheet"  # INT, surface sheet (chart and side) the patch lies on
+THICKNESS = "ovrad_thickness"  # FLOAT, tolerated distance from the patch plane
+MIN_COS = "ovrad_min_cos"  # FLOAT, least cosine between patch and surface normals
+SUPPORT_AREA = "ovrad_support_area"  # FLOAT, area A_h of the patch's support on the surface
+RANDOM = "ovrad_random"  # FLOAT in [0, 1), a stable random value per patch (display)
+RADIOSITY = "ovrad_radiosity"  # FLOAT_COLOR, solved radiance B/pi (later issues)
+
+# Custom properties on the atlas object.
+PROP_SOURCE = "ovrad_source"  # name of the source mesh object
+PROP_BETA = "ovrad_beta"  # beta profile the atlas was built with ("box" or "smooth")
+PROP_VERSION = "ovrad_atlas_version"
+
+COLLECTION = "ovrad"
+DISPLAY_NODE_GROUP = "ovrad_patch_display"
+DISPLAY_MODIFIER = "ovrad display"
+
+SHAPE_DISK = 0
+SHAPE_SQUARE = 1

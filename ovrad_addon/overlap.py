@@ -1,0 +1,246 @@
+"""Integrals over patch supports: quadrature points on the surface, the overlap matrix C, alpha at points.
+
+C[h, i] = c_ih = integral over D_h of alpha_i; its row sums are the support areas A_h and its
+diagonal the effective areas c_hh. Integration uses an equal-weight rule on each patch's disk
+or square, with every rule point moved onto the patch's own sheet along the patch normal
+(rule points that land nowhere on the sheet are outside the support and get no weight).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix, csr_matrix
+from scipy.spatial import cKDTree
+
+from .support import SHAPE_SQUARE, alpha_from_pairs, pair_beta
+
+
+@dataclass(frozen=True)
+class Quadrature:
+    """Rule points on the supports of some patches, flat: owner (m,) position in the ids given,
+    points (m, 3), normals (m, 3) surface normal on the patch's side, weights (m,) area (0 where
+    the rule point is off the support), triangle (m,) (-1 off the support)."""
+
+    owner: np.ndarray
+    points: np.ndarray
+    normals: np.ndarray
+    weights: np.ndarray
+    triangle: np.ndarray
+
+
+def _gauss(n_sub: int) -> tuple[np.ndarray, np.ndarray]:
+    x, w = np.polynomial.legendre.leggauss(n_sub)
+    return 0.5 * (x + 1.0), 0.5 * w
+
+
+def polar_rule(atlas, ids: np.ndarray, nb: np.ndarray, q: int, planar: np.ndarray, rings: int):
+    """Polar rule on each patch: (owner, x, y, w) flat, in the patch's plane coordinates.
+
+    Along each of 4q rays from the centre, the radius is split at every crossing of a
+    neighbour's rim (nb (k, M) neighbour indices, -1 padding; used on planar sheets, where
+    rims are exact circles and squares in the plane) and at `rings` equal-area rings. alpha is then
+    smooth inside each piece, so two Gauss points per piece integrate it (and a box-beta
+    alpha, constant on each piece, exactly); the angular rule is the only approximation left.
+    """
+    k = len(ids)
+    n_t = 4 * q
+    rnd = np.random.default_rng(len(atlas)).random(len(atlas))[ids]
+    r = atlas.radii[ids][:, None]
+    square = (atlas.shapes[ids] == SHAPE_SQUARE)[:, None]
+    # Disks: equally spaced angles, turned by a random offset per patch so that neighbouring
+    # rules share no alignment. Squares: Gauss angles within each quarter between corners,
+    # where the distance to the square's side is smooth, so the square's area comes out exact.
+    even = 2.0 * np.pi * (np.arange(n_t)[None, :] + rnd[:, None]) / n_t
+    gx, gw = _gauss(q)
+    quarter = np.arange(n_t) // q
+    sq_theta = (-0.25 + 0.5 * quarter + 0.5 * np.tile(gx, 4)) * np.pi
+    theta = np.where(square, sq_theta[None, :], even)  # (k, n_t)
+    dtheta = np.where(square, 0.5 * np.pi * np.tile(gw, 4)[None, :], 2.0 * np.pi / n_t)
+    ux, uy = np.cos(theta), np.sin(theta)
+    rmax = np.where(square, r / np.maximum(np.abs(ux), np.abs(uy)), r)  # (k, n_t)
+    ring = np.sqrt(np.arange(1, rings) / rings)[None, None, :] * rmax[..., None]
+    cuts = [np.zeros((k, n_t, 1)), ring, rmax[..., None]]
+    if nb.shape[1]:
+        t_h, n_h = atlas.tangents[ids], atlas.normals[ids]
+        b_h = np.cross(n_h, t_h)
+        ok = (nb >= 0) & planar[:, None]
+        j = np.maximum(nb, 0)
+        rel = atlas.centers[j] - atlas.centers[ids][:, None]
+        cx = np.einsum("kmd,kd->km", rel, t_h)[..., None]
+        cy = np.einsum("kmd,kd->km", rel, b_h)[..., None]
+        rj = atlas.radii[j][..., None]
+        uxe, uye = ux[:, None], uy[:, None]  # (k, 1, n_t)
+        # disk neighbour: |rho u - c| = r_j
+        cu = cx * uxe + cy * uye
+        disc = cu * cu - (cx * cx + cy * cy) + rj * rj
+        sq = np.sqrt(np.maximum(disc, 0.0))
+        d_in, d_out = cu - sq, cu + sq
+        # square neighbour: slabs along its own axes, expressed in this patch's plane
+        tj = atlas.tangents[j]
+        ax = np.einsum("kmd,kd->km", tj, t_h)[..., None]
+        ay = np.einsum("kmd,kd->km", tj, b_h)[..., None]
+        lo_e, hi_e = [], []
+        for a1, a2 in ((ax, ay), (-ay, ax)):
+            ua = uxe * a1 + uye * a2
+            ca = cx * a1 + cy * a2
+            with np.errstate(divide="ignore", invalid="ignore"):
+                e1 = (ca - rj) / ua
+                e2 = (ca + rj) / ua
+            lo_e.append(np.where(ua != 0, np.minimum(e1, e2), -np.inf))
+            hi_e.append(np.where(ua != 0, np.maximum(e1, e2), np.inf))
+        s_in = np.maximum(lo_e[0], lo_e[1])
+        s_out = np.minimum(hi_e[0], hi_e[1])
+        is_sq = (atlas.shapes[j] == SHAPE_SQUARE)[..., None]
+        c_in = np.where(is_sq, s_in, d_in)
+        c_out = np.where(is_sq, s_out, d_out)
+        hit = ok[..., None] & np.where(is_sq, s_in < s_out, disc > 0)
+        big = rmax[:, None]
+        c_in = np.where(hit, np.clip(c_in, 0.0, big), big)
+        c_out = np.where(hit, np.clip(c_out, 0.0, big), big)
+        cuts += [np.moveaxis(c_in, 1, 2), np.moveaxis(c_out, 1, 2)]
+    bp = np.sort(np.concatenate(cuts, axis=2), axis=2)
+    lo, hi = bp[..., :-1], bp[..., 1:]
+    keep = hi > lo + 1e-12 * r[..., None]
+    kk, tt, _ = np.nonzero(keep)
+    lo, hi = lo[keep], hi[keep]
+    gx, gw = _gauss(2)
+    rho = lo[:, None] + (hi - lo)[:, None] * gx[None]
+    w = dtheta[kk, tt][:, None] * (hi - lo)[:, None] * gw[None] * rho
+    owner = np.repeat(kk, len(gx))
+    th = np.repeat(theta[kk, tt], len(gx))
+    rho = rho.ravel()
+    return owner, rho * np.cos(th), rho * np.sin(th), w.ravel()
+
+
+def patch_quadrature(
+    atlas, index, ids: np.ndarray, q: int, nb: np.ndarray | None = None, rings: int | None = None
+) -> Quadrature:
+    """Quadrature of the supports D_h for patches `ids`, on the surface, with area weights.
+
+    Rule points are moved onto the patch's own sheet along its normal; points that land on
+    another sheet, or nowhere, are outside the support and get weight 0. Where that happens
+    (the sheet's border cuts the patch) the radius is split 8 times finer, so the cut is
+    resolved closely.
+    """
+    planar = index.planar[index.sheet_chart[atlas.sheet[ids]]]
+    if nb is None:
+        nb = np.zeros((len(ids), 0), np.int64)
+    if rings is None:
+        coarse = patch_quadrature(atlas, index, ids, q, nb, max(q // 4, 1))
+        cut = np.bincount(coarse.owner, weights=coarse.triangle < 0, minlength=len(ids)) > 0
+        if not cut.any():
+            return coarse
+        fine = patch_quadrature(atlas, index, ids[cut], q, nb[cut], 2 * q)
+        keep = ~cut[coarse.owner]
+        where = np.flatnonzero(cut)
+        return Quadrature(
+            owner=np.concatenate([coarse.owner[keep], where[fine.owner]]),
+            points=np.concatenate([coarse.points[keep], fine.points]),
+            normals=np.concatenate([coarse.normals[keep], fine.normals]),
+            weights=np.concatenate([coarse.weights[keep], fine.weights]),
+            triangle=np.concatenate([coarse.triangle[keep], fine.triangle]),
+        )
+    owner, x, y, w = polar_rule(atlas, ids, nb, q, planar, rings)
+    g = ids[owner]
+    n = atlas.normals[g]
+    t = atlas.tangents[g]
+    b = np.cross(n, t)
+    plane = atlas.centers[g] + x[:, None] * t + y[:, None] * b
+    lift = atlas.thickness[g] * 1.0001
+    origins = plane + lift[:, None] * n
+    hit_t, tri = index.rays.closest_hit(origins, -n, 2.0002 * atlas.thickness[g])
+    side = index.sheet_side[atlas.sheet[g]]
+    tri_n = index.charts.normals[np.maximum(tri, 0)] * side[:, None]
+    cos = np.einsum("ij,ij->i", tri_n, n)
+    ok = (tri >= 0) & (index.sheet_of(tri, side) == atlas.sheet[g]) & (cos >= atlas.min_cos[g])
+    hit_t = np.where(np.isfinite(hit_t), hit_t, 0.0)
+    on_plane = planar[owner]
+    # On planar sheets the rule point already lies on the surface: keep it exact.
+    pts = np.where(on_plane[:, None], plane, origins - hit_t[:, None] * n)
+    jac = np.where(on_plane, 1.0, 1.0 / np.maximum(np.abs(cos), 1e-12))
+    return Quadrature(
+        owner=owner,
+        points=pts,
+        normals=tri_n,
+        weights=np.where(ok, w * jac, 0.0),
+        triangle=np.where(ok, tri, -1),
+    )
+
+
+def neighbour_pairs(atlas) -> tuple[np.ndarray, np.ndarray]:
+    """All (h, i) on the same sheet whose bounding balls intersect, h == i included."""
+    br = atlas.bounding_radii
+    tree = cKDTree(atlas.centers)
+    pairs = tree.query_pairs(2.0 * float(br.max()), output_type="ndarray")
+    a, b = pairs[:, 0], pairs[:, 1]
+    d = np.linalg.norm(atlas.centers[a] - atlas.centers[b], axis=1)
+    keep = (d <= br[a] + br[b]) & (atlas.sheet[a] == atlas.sheet[b])
+    a, b = a[keep], b[keep]
+    n = len(atlas)
+    h = np.concatenate([a, b, np.arange(n)])
+    i = np.concatenate([b, a, np.arange(n)])
+    order = np.lexsort((i, h))
+    return h[order], i[order]
+
+
+def overlap_matrix(
+    atlas, index, q: int, progress: Callable[[float], None] | None = None, chunk_points: int = 1_500_000
+) -> tuple[csr_matrix, np.ndarray]:
+    """C (n x n sparse, C[h, i] = c_ih) and the support areas A_h (n,)."""
+    n = len(atlas)
+    ph, pi = neighbour_pairs(atlas)
+    start = np.searchsorted(ph, np.arange(n + 1))
+    deg = np.diff(start)
+    # rule points per patch grow with its neighbours (rim crossings): size chunks by that
+    per_chunk = max(1, chunk_points // max(int(8 * q * (deg.max() + q // 4 + 1)), 1))
+    rows, cols, vals = [], [], []
+    support = np.zeros(n)
+    for s0 in range(0, n, per_chunk):
+        ids = np.arange(s0, min(n, s0 + per_chunk))
+        lo, hi = start[ids], start[ids + 1]
+        m = int((hi - lo).max())
+        slot = np.arange(m)[None, :]
+        nb = np.where(slot < (hi - lo)[:, None], pi[np.minimum(lo[:, None] + slot, len(pi) - 1)], -1)
+        nb = np.where(nb == ids[:, None], -1, nb)
+        quad = patch_quadrature(atlas, index, ids, q, nb)
+        support[ids] = np.bincount(quad.owner, weights=quad.weights, minlength=len(ids))
+        # Pair every rule point with every neighbour (and itself) of its patch.
+        cnt = (hi - lo)[quad.owner]
+        prow = np.repeat(np.arange(len(quad.owner)), cnt)
+        first = np.repeat(lo[quad.owner], cnt)
+        pcol = pi[first + np.arange(len(prow)) - np.repeat(np.cumsum(cnt) - cnt, cnt)]
+        sheets = np.where(quad.triangle >= 0, atlas.sheet[ids[quad.owner]], -1)
+        member, b = pair_beta(atlas, pcol, quad.points[prow], quad.normals[prow], sheets[prow], atlas.beta)
+        alpha = alpha_from_pairs(prow, pcol, member, b, (len(quad.owner), n)).tocoo()
+        rows.append(ids[quad.owner[alpha.row]])
+        cols.append(alpha.col)
+        vals.append(alpha.data * quad.weights[alpha.row])
+        if progress is not None:
+            progress(min(1.0, (s0 + len(ids)) / n))
+    C = coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)).tocsr()
+    C.eliminate_zeros()
+    return C, support
+
+
+def alpha_at(atlas, index, points: np.ndarray, triangle: np.ndarray, side) -> csr_matrix:
+    """alpha_i at surface points (m x n sparse): points (m, 3) on `triangle` (m,), seen from side (m,) +-1."""
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    tri = np.asarray(triangle, np.int64)
+    side = np.broadcast_to(np.asarray(side), tri.shape)
+    sheets = index.sheet_of(tri, side)
+    nrm = index.charts.normals[np.maximum(tri, 0)] * np.where(side < 0, -1.0, 1.0)[:, None]
+    tree = cKDTree(atlas.centers)
+    lists = tree.query_ball_point(pts, float(atlas.bounding_radii.max()) * (1 + 1e-9))
+    lens = np.fromiter((len(x) for x in lists), np.int64, len(pts))
+    cols = np.concatenate([np.asarray(x, np.int64) for x in lists]) if len(pts) else np.zeros(0, np.int64)
+    rows = np.repeat(np.arange(len(pts)), lens)
+    member, b = pair_beta(atlas, cols, pts[rows], nrm[rows], sheets[rows], atlas.beta)
+    return alpha_from_pairs(rows, cols, member, b, (len(pts), len(atlas)))
+
+
+def reconstruct(alpha: csr_matrix, values: np.ndarray) -> np.ndarray:
+    """f(M) = sum_i alpha_i(M) f_i for per-patch values (n,) or (n, c); 0 where no patch covers M."""
+    return alpha @ np.asarray(values, np.float64)

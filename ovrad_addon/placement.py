@@ -1,0 +1,257 @@
+"""Where patches go: a grid aligned with each planar chart, voxel clusters on curved charts.
+
+Placement depends on areas and a target spacing, never on how finely the mesh is tessellated.
+Every point of a sheet ends up inside at least one patch: a grid cell is covered by the disk
+circumscribing it (or by a square equal to it), and a voxel's surface samples by a disk
+reaching its farthest sample plus the sampling gap.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import ConvexHull, QhullError, cKDTree
+
+from .support import SHAPE_DISK, SHAPE_SQUARE
+
+
+@dataclass
+class Placed:
+    """Patches placed on one sheet (arrays of equal length k)."""
+
+    centers: np.ndarray  # (k, 3)
+    normals: np.ndarray  # (k, 3)
+    tangents: np.ndarray  # (k, 3)
+    radii: np.ndarray  # (k,)
+    shapes: np.ndarray  # (k,) int8
+    thickness: np.ndarray  # (k,)
+    min_cos: np.ndarray  # (k,)
+
+
+def _ranges(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For integer ranges [lo_k, hi_k] give (owner k, value) pairs, vectorised."""
+    counts = np.maximum(hi - lo + 1, 0)
+    owner = np.repeat(np.arange(len(lo)), counts)
+    start = np.cumsum(counts) - counts
+    value = lo[owner] + np.arange(counts.sum()) - start[owner]
+    return owner, value
+
+
+def plane_frame(points2d: np.ndarray) -> float:
+    """Angle (radians) of the minimum-area bounding rectangle of 2-D points (rotating calipers)."""
+    pts = points2d
+    try:
+        hull = pts[ConvexHull(pts).vertices]
+    except QhullError:  # collinear or too few points: any orientation will do
+        return 0.0
+    edges = np.roll(hull, -1, axis=0) - hull
+    ang = np.mod(np.arctan2(edges[:, 1], edges[:, 0]), np.pi / 2)
+    c, s = np.cos(ang), np.sin(ang)
+    x = hull[:, 0][None] * c[:, None] + hull[:, 1][None] * s[:, None]
+    y = -hull[:, 0][None] * s[:, None] + hull[:, 1][None] * c[:, None]
+    area = np.ptp(x, axis=1) * np.ptp(y, axis=1)
+    # Among near-minimal rectangles prefer the smallest angle, so results are deterministic.
+    good = area <= area.min() * (1 + 1e-9)
+    return float(np.min(ang[good]))
+
+
+def _sat_overlap(tri2d: np.ndarray, lo: np.ndarray, hi: np.ndarray, eps: float) -> np.ndarray:
+    """Triangles (m, 3, 2) and rectangles [lo, hi] (m, 2) overlap with positive area (SAT, margin eps)."""
+    ok = np.all(tri2d.max(axis=1) > lo + eps, axis=1) & np.all(tri2d.min(axis=1) < hi - eps, axis=1)
+    corners = np.stack(
+        [lo, np.stack([hi[:, 0], lo[:, 1]], 1), hi, np.stack([lo[:, 0], hi[:, 1]], 1)], axis=1
+    )  # (m, 4, 2)
+    for k in range(3):
+        e = tri2d[:, (k + 1) % 3] - tri2d[:, k]
+        nrm = np.stack([-e[:, 1], e[:, 0]], 1)
+        nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
+        pt = np.einsum("mvk,mk->mv", tri2d, nrm)
+        pr = np.einsum("mvk,mk->mv", corners, nrm)
+        ok &= (pt.max(1) > pr.min(1) + eps) & (pr.max(1) > pt.min(1) + eps)
+    return ok
+
+
+def _segment_touches(a: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray, eps: float) -> np.ndarray:
+    """Segments a-b (m, 2) touch or cross the closed rectangles [lo - eps, hi + eps] (m, 2)."""
+    lo, hi = lo - eps, hi + eps
+    ok = np.all(np.maximum(a, b) >= lo, axis=1) & np.all(np.minimum(a, b) <= hi, axis=1)
+    d = b - a
+    nrm = np.stack([-d[:, 1], d[:, 0]], 1)
+    corners = np.stack([lo, np.stack([hi[:, 0], lo[:, 1]], 1), hi, np.stack([lo[:, 0], hi[:, 1]], 1)], axis=1)
+    side = np.einsum("mvk,mk->mv", corners - a[:, None], nrm)
+    ok &= (side.min(1) <= 0) & (side.max(1) >= 0)
+    return ok
+
+
+def place_planar(
+    corners: np.ndarray,
+    normal: np.ndarray,
+    spacing: float,
+    overlap: float,
+    shapes: str,
+    extent: float,
+) -> Placed:
+    """Grid patches on one planar sheet given its triangles (T, 3, 3) and the sheet's unit normal."""
+    n = normal / np.linalg.norm(normal)
+    helper = np.eye(3)[np.argmin(np.abs(n))]
+    e1 = np.cross(helper, n)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(n, e1)
+    origin = corners.reshape(-1, 3).mean(axis=0)
+    rel = corners - origin
+    p2 = np.stack([rel @ e1, rel @ e2], axis=-1)  # (T, 3, 2)
+    ang = plane_frame(p2.reshape(-1, 2))
+    c, s = np.cos(ang), np.sin(ang)
+    t1 = c * e1 + s * e2
+    t2 = np.cross(n, t1)
+    p2 = np.stack([rel @ t1, rel @ t2], axis=-1)
+    lo = p2.reshape(-1, 2).min(axis=0)
+    hi = p2.reshape(-1, 2).max(axis=0)
+    ncell = np.maximum(np.ceil((hi - lo) / spacing - 1e-9), 1).astype(np.int64)
+    h = np.maximum((hi - lo) / ncell, 1e-300)
+    eps = 1e-9 * max(extent, float(np.max(hi - lo)))
+    # Candidate (triangle, cell) pairs from each triangle's bounding box, then exact overlap.
+    tlo = np.floor((p2.min(axis=1) - lo) / h).astype(np.int64).clip(0, ncell - 1)
+    thi = np.floor((p2.max(axis=1) - lo) / h).astype(np.int64).clip(0, ncell - 1)
+    tx, ix = _ranges(tlo[:, 0], thi[:, 0])
+    rep = thi[tx, 1] - tlo[tx, 1] + 1
+    owner = np.repeat(tx, rep)
+    ixr = np.repeat(ix, rep)
+    start = np.cumsum(rep) - rep
+    iy = tlo[owner, 1] + np.arange(rep.sum()) - np.repeat(start, rep)
+    clo = lo + np.stack([ixr, iy], 1) * h
+    hit = _sat_overlap(p2[owner], clo, clo + h, eps)
+    cells = np.unique(ixr[hit] * ncell[1] + iy[hit])
+    cx, cy = cells // ncell[1], cells % ncell[1]
+    # Boundary edges: edges used once among the sheet's triangles (welded by 2-D position).
+    e_a = p2[:, [0, 1, 2]].reshape(-1, 2)
+    e_b = p2[:, [1, 2, 0]].reshape(-1, 2)
+    qa = np.round(e_a / (eps * 100)).astype(np.int64)
+    qb = np.round(e_b / (eps * 100)).astype(np.int64)
+    swap = (qa[:, 0] > qb[:, 0]) | ((qa[:, 0] == qb[:, 0]) & (qa[:, 1] > qb[:, 1]))
+    key = np.concatenate([np.where(swap[:, None], qb, qa), np.where(swap[:, None], qa, qb)], axis=1)
+    _, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    border = cnt[inv.reshape(-1)] == 1
+    ba, bb = e_a[border], e_b[border]
+    boundary = np.zeros(len(cells), bool)
+    if len(ba) and shapes == "AUTO":
+        blo = np.floor((np.minimum(ba, bb) - eps - lo) / h).astype(np.int64).clip(0, ncell - 1)
+        bhi = np.floor((np.maximum(ba, bb) + eps - lo) / h).astype(np.int64).clip(0, ncell - 1)
+        bx, jx = _ranges(blo[:, 0], bhi[:, 0])
+        rep = bhi[bx, 1] - blo[bx, 1] + 1
+        own = np.repeat(bx, rep)
+        jxr = np.repeat(jx, rep)
+        start = np.cumsum(rep) - rep
+        jy = blo[own, 1] + np.arange(rep.sum()) - np.repeat(start, rep)
+        clo = lo + np.stack([jxr, jy], 1) * h
+        touch = _segment_touches(ba[own], bb[own], clo, clo + h, eps)
+        touched = np.unique(jxr[touch] * ncell[1] + jy[touch])
+        boundary = np.isin(cells, touched)
+    if shapes == "SQUARES":
+        square = np.ones(len(cells), bool)
+    elif shapes == "DISKS":
+        square = np.zeros(len(cells), bool)
+    else:
+        square = boundary
+    centre2 = lo + (np.stack([cx, cy], 1) + 0.5) * h
+    half_diag = 0.5 * float(np.hypot(h[0], h[1]))
+    half_side = 0.5 * float(h.max())
+    radii = overlap * np.where(square, half_side, half_diag)
+    # Pull patches that stick out of the sheet's bounding rectangle back inside, as far as
+    # keeps their own cell covered: on rectangular sheets no support is then clipped, so the
+    # integration rule needs no refinement at the borders.
+    slack = np.where(square, radii - 0.5 * h.max(), (radii - half_diag) / np.sqrt(2.0))[:, None]
+    reach = radii[:, None]
+    lo_c = np.maximum(lo + reach, centre2 - slack)
+    hi_c = np.minimum(hi - reach, centre2 + slack)
+    centre2 = np.where(lo_c <= hi_c + eps, np.minimum(np.maximum(centre2, lo_c), hi_c + eps), centre2)
+    centers = origin + centre2[:, :1] * t1 + centre2[:, 1:] * t2
+    k = len(cells)
+    return Placed(
+        centers=centers,
+        normals=np.tile(n, (k, 1)),
+        tangents=np.tile(t1, (k, 1)),
+        radii=radii,
+        shapes=np.where(square, SHAPE_SQUARE, SHAPE_DISK).astype(np.int8),
+        thickness=1e-3 * radii + 1e-6 * extent,
+        min_cos=np.full(k, 0.9),
+    )
+
+
+def sample_triangles(corners: np.ndarray, spacing: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Stratified-random surface samples about `spacing` apart, plus every corner: (points (s,3), triangle (s,))."""
+    a = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+    count = np.maximum(np.ceil(a / spacing**2), 1).astype(np.int64)
+    tri = np.repeat(np.arange(len(corners)), count)
+    rng = np.random.default_rng(seed)
+    u, v = rng.random(len(tri)), rng.random(len(tri))
+    flip = u + v > 1
+    u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
+    c = corners[tri]
+    pts = c[:, 0] + u[:, None] * (c[:, 1] - c[:, 0]) + v[:, None] * (c[:, 2] - c[:, 0])
+    all_pts = np.concatenate([pts, corners.reshape(-1, 3)])
+    all_tri = np.concatenate([tri, np.repeat(np.arange(len(corners)), 3)])
+    return all_pts, all_tri
+
+
+def place_curved(
+    corners: np.ndarray,
+    tri_normals: np.ndarray,
+    spacing: float,
+    overlap: float,
+    extent: float,
+    seed: int,
+) -> Placed:
+    """Disk patches on a curved sheet: one per occupied voxel of side `spacing`.
+
+    tri_normals (T, 3) are already oriented for the sheet's side.
+    """
+    gap = spacing / 6.0
+    pts, tri = sample_triangles(corners, gap, seed)
+    nrm = tri_normals[tri]
+    key = np.floor((pts - pts.min(axis=0)) / spacing).astype(np.int64)
+    _, vox = np.unique(key, axis=0, return_inverse=True)
+    vox = vox.reshape(-1)
+    k = int(vox.max()) + 1
+    cnt = np.bincount(vox, minlength=k).astype(np.float64)
+    mean = np.stack([np.bincount(vox, weights=pts[:, j], minlength=k) for j in range(3)], 1) / cnt[:, None]
+    nsum = np.stack([np.bincount(vox, weights=nrm[:, j], minlength=k) for j in range(3)], 1)
+    normals = nsum / np.maximum(np.linalg.norm(nsum, axis=1, keepdims=True), 1e-300)
+    # Centre: the voxel's sample nearest its mean, so the patch sits on the surface.
+    d_mean = np.linalg.norm(pts - mean[vox], axis=1)
+    order = np.lexsort((d_mean, vox))
+    first = order[np.searchsorted(vox[order], np.arange(k))]
+    centers = pts[first]
+    helper = np.eye(3)[np.argmin(np.abs(normals), axis=1)]
+    tangents = np.cross(helper, normals)
+    tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)
+    rel = pts - centers[vox]
+    h = np.einsum("ij,ij->i", rel, normals[vox])
+    inplane = np.sqrt(np.maximum(np.einsum("ij,ij->i", rel, rel) - h * h, 0.0))
+    reach = np.zeros(k)
+    np.maximum.at(reach, vox, inplane)
+    own_cos = np.ones(k)
+    np.minimum.at(own_cos, vox, np.einsum("ij,ij->i", nrm, normals[vox]))
+    radii = overlap * np.maximum(reach + gap, spacing / np.sqrt(2.0))
+    min_cos = np.minimum(0.5, own_cos) - 0.02
+    # Thickness: how far from its plane the sheet strays inside the patch's disk.
+    tree = cKDTree(pts)
+    lists = tree.query_ball_point(centers, radii * 1.0000001)
+    lens = np.fromiter((len(x) for x in lists), np.int64, k)
+    idx = np.concatenate([np.asarray(x, np.int64) for x in lists]) if k else np.zeros(0, np.int64)
+    own = np.repeat(np.arange(k), lens)
+    rel = pts[idx] - centers[own]
+    hh = np.abs(np.einsum("ij,ij->i", rel, normals[own]))
+    agree = np.einsum("ij,ij->i", nrm[idx], normals[own]) >= min_cos[own]
+    thick = np.zeros(k)
+    np.maximum.at(thick, own[agree], hh[agree])
+    return Placed(
+        centers=centers,
+        normals=normals,
+        tangents=tangents,
+        radii=radii,
+        shapes=np.zeros(k, np.int8),
+        thickness=1.05 * thick + 1e-3 * radii + 1e-6 * extent,
+        min_cos=min_cos,
+    )

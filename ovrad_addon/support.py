@@ -1,0 +1,106 @@
+"""Where a patch lives on the surface: membership, beta and alpha at points, and quadrature rules.
+
+A surface point M (with its sheet: chart and side) is in patch D_i when it lies on the patch's
+sheet, its normal agrees with n_i (cosine >= min_cos_i), it is within thickness_i of the patch
+plane, and its projection M_i onto the plane falls inside the disk or square. This is the
+paper's association M -> M_i, and it is what stops a patch leaking across a crease, a gap, a
+thin wall or onto a surface facing away.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.sparse import csr_matrix
+
+SHAPE_DISK = 0
+SHAPE_SQUARE = 1
+
+
+def local_coords(patches, idx: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """In-plane coordinates (x, y) along (tangent, bitangent) and height h of points relative to patches idx.
+
+    Each row pairs one point with one patch; all arrays (m,).
+    """
+    rel = points - patches.centers[idx]
+    t = patches.tangents[idx]
+    n = patches.normals[idx]
+    b = np.cross(n, t)
+    return (
+        np.einsum("ij,ij->i", rel, t),
+        np.einsum("ij,ij->i", rel, b),
+        np.einsum("ij,ij->i", rel, n),
+    )
+
+
+def beta_of(
+    patches, idx: np.ndarray, x: np.ndarray, y: np.ndarray, beta: str
+) -> tuple[np.ndarray, np.ndarray]:
+    """(inside, beta) for points at in-plane coords (x, y) of patches idx; beta is 0 outside."""
+    r = patches.radii[idx]
+    square = patches.shapes[idx] == SHAPE_SQUARE
+    u, v = x / r, y / r
+    d2 = u * u + v * v
+    inside = np.where(square, np.maximum(np.abs(u), np.abs(v)) <= 1.0, d2 <= 1.0)
+    if beta == "box":
+        b = inside.astype(np.float64)
+    else:
+        disk = np.square(np.clip(1.0 - d2, 0.0, None))
+        sq = np.clip(1.0 - u * u, 0.0, None) * np.clip(1.0 - v * v, 0.0, None)
+        b = np.where(inside, np.where(square, sq, disk), 0.0)
+    return inside, b
+
+
+def pair_beta(patches, idx, points, normals, sheets, beta: str) -> tuple[np.ndarray, np.ndarray]:
+    """Membership (m,) bool and beta (m,) for paired rows (point j, patch idx[j])."""
+    x, y, h = local_coords(patches, idx, points)
+    inside, b = beta_of(patches, idx, x, y, beta)
+    cos = np.einsum("ij,ij->i", normals, patches.normals[idx])
+    member = (
+        inside
+        & (sheets == patches.sheet[idx])
+        & (cos >= patches.min_cos[idx])
+        & (np.abs(h) <= patches.thickness[idx])
+    )
+    return member, np.where(member, b, 0.0)
+
+
+def alpha_from_pairs(
+    rows: np.ndarray, cols: np.ndarray, member: np.ndarray, b: np.ndarray, shape
+) -> csr_matrix:
+    """Partition of unity alpha (sparse, points x patches) from membership and beta of candidate pairs.
+
+    alpha_i = beta_i / sum_j beta_j. Where every covering beta is 0 (a point on the rims of all
+    its smooth patches) the box profile is used instead, so alpha still sums to 1 there.
+    """
+    rows, cols, b = rows[member], cols[member], b[member]
+    m = shape[0]
+    bsum = np.bincount(rows, weights=b, minlength=m)
+    count = np.bincount(rows, minlength=m).astype(np.float64)
+    zero = bsum[rows] <= 0.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a = np.where(zero, 1.0 / count[rows], b / bsum[rows])
+    return csr_matrix((a, (rows, cols)), shape=shape)
+
+
+def disk_rule(q: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Equal-area midpoint rule on the unit disk: (x, y, w), weights summing to pi exactly.
+
+    q//2 rings of equal area (midpoint in r^2), 2q angles per ring, alternate rings offset by
+    half a step so no radial line of points repeats.
+    """
+    n_r, n_t = max(q // 2, 1), 2 * q
+    s = (np.arange(n_r) + 0.5) / n_r
+    r = np.sqrt(s)
+    k = np.arange(n_t)
+    theta = 2 * np.pi * (k[None, :] + 0.5 * (np.arange(n_r)[:, None] % 2)) / n_t
+    x = (r[:, None] * np.cos(theta)).ravel()
+    y = (r[:, None] * np.sin(theta)).ravel()
+    w = np.full(x.shape, np.pi / x.size)
+    return x, y, w
+
+
+def square_rule(q: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Midpoint rule on [-1, 1]^2 with q x q points, weights summing to 4."""
+    c = (np.arange(q) + 0.5) / q * 2.0 - 1.0
+    x, y = np.meshgrid(c, c, indexing="ij")
+    return x.ravel(), y.ravel(), np.full(q * q, 4.0 / (q * q))

@@ -1,0 +1,139 @@
+"""Partition of unity, overlap coefficients and reconstruction against exact answers."""
+
+import numpy as np
+import pytest
+import scenes
+
+from ovrad_addon.atlas import Atlas, build_atlas, index_surfaces
+from ovrad_addon.overlap import alpha_at, overlap_matrix, reconstruct
+from ovrad_addon.settings import AtlasSettings
+from ovrad_addon.surfaces import Surfaces
+
+
+def surface_area(s: Surfaces) -> float:
+    c = s.corners
+    return float(0.5 * np.linalg.norm(np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]), axis=1).sum())
+
+
+def lens_area(r: float, d: float) -> float:
+    """Area common to two circles of radius r whose centres are d apart (closed form)."""
+    return 2 * r * r * np.arccos(d / (2 * r)) - 0.5 * d * np.sqrt(4 * r * r - d * d)
+
+
+def two_disks(r: float, d: float, beta: str):
+    """Two coplanar disks on a large plane, built by hand (not by the placement code)."""
+    v, t = scenes.plane(size=4.0)
+    s = Surfaces.from_arrays(v, t)
+    settings = AtlasSettings(patch_size=1.0, beta=beta)
+    index = index_surfaces(s, settings)
+    n = 2
+    atlas = Atlas(
+        centers=np.array([[2.0 - d / 2, 2.0, 0.0], [2.0 + d / 2, 2.0, 0.0]]),
+        normals=np.tile([0.0, 0.0, 1.0], (n, 1)),
+        tangents=np.tile([1.0, 0.0, 0.0], (n, 1)),
+        radii=np.full(n, r),
+        shapes=np.zeros(n, np.int8),
+        sheet=np.zeros(n, np.int64),
+        source_object=np.zeros(n, np.int64),
+        thickness=np.full(n, 1e-3 * r),
+        min_cos=np.full(n, 0.9),
+        support_area=np.zeros(n),
+        effective_area=np.zeros(n),
+        overlap_count=np.zeros(n, np.int64),
+        random=np.array([0.1, 0.7]),
+        beta=beta,
+    )
+    return atlas, index
+
+
+SCENES = {
+    "cube": scenes.cube,
+    "sphere": scenes.sphere,
+    "cornell": scenes.cornell,
+    "thin_wall": scenes.thin_wall_rooms,
+}
+
+
+def test_two_box_disks_overlap_coefficient_is_half_the_lens_area():
+    r, d = 0.5, 0.6
+    atlas, index = two_disks(r, d, "box")
+    C, support = overlap_matrix(atlas, index, q=AtlasSettings().quadrature)
+    lens = lens_area(r, d)
+    # box beta: alpha = 1/2 in the lens, so c_12 = lens / 2 and c_11 = pi r^2 - lens / 2
+    assert C[0, 1] == pytest.approx(lens / 2, rel=5e-3)
+    assert C[1, 0] == pytest.approx(lens / 2, rel=5e-3)
+    assert C[0, 0] == pytest.approx(np.pi * r * r - lens / 2, rel=5e-3)
+    np.testing.assert_allclose(support, np.pi * r * r, rtol=1e-12)
+
+
+def test_paper_figure3_box_beta_averages_and_smooth_beta_blends():
+    r, d = 0.5, 0.6
+    red_green = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    x = np.linspace(2.0 - d / 2 - r + 1e-6, 2.0 + d / 2 + r - 1e-6, 801)
+    pts = np.stack([x, np.full_like(x, 2.0), np.zeros_like(x)], 1)
+    lens = np.abs(x - 2.0) < r - d / 2
+    for beta in ("box", "smooth"):
+        atlas, index = two_disks(r, d, beta)
+        a = alpha_at(atlas, index, pts, np.zeros(len(x), np.int64), np.ones(len(x)))
+        colour = reconstruct(a, red_green)
+        np.testing.assert_allclose(colour.sum(axis=1), 1.0, atol=1e-12)
+        left_only = x < 2.0 + d / 2 - r
+        np.testing.assert_allclose(colour[left_only], np.tile([1.0, 0, 0], (left_only.sum(), 1)), atol=1e-12)
+        if beta == "box":
+            np.testing.assert_allclose(colour[lens], np.tile([0.5, 0.5, 0], (lens.sum(), 1)), atol=1e-12)
+        else:
+            red = colour[lens, 0]
+            assert np.all(np.diff(red) < 0), "smooth beta blends monotonically from red to green"
+            assert red[0] > 0.99 and red[-1] < 0.01
+            assert np.abs(np.diff(colour[:, 0])).max() < 0.02, "no jump anywhere along the line"
+
+
+@pytest.mark.parametrize("name", sorted(SCENES))
+@pytest.mark.parametrize("beta", ["box", "smooth"])
+def test_alpha_is_a_partition_of_unity_and_atlas_covers_every_point(name, beta):
+    s = SCENES[name]()
+    settings = AtlasSettings(patch_count=800, beta=beta)
+    atlas = build_atlas(s, settings)
+    index = index_surfaces(s, settings)
+    pts, tri = scenes.sample_surface(s, 100_000, seed=3)
+    checked = 0
+    for side in (1, -1):
+        sides = np.full(len(tri), side)
+        on = index.sheet_of(tri, sides) >= 0
+        if not on.any():
+            continue
+        a = alpha_at(atlas, index, pts[on], tri[on], sides[on])
+        total = np.asarray(a.sum(axis=1)).ravel()
+        assert total.min() > 0.5, f"{(total < 0.5).sum()} sampled points are in no patch (holes)"
+        np.testing.assert_allclose(total, 1.0, atol=1e-9)
+        checked += on.sum()
+    assert checked >= 100_000
+
+
+@pytest.mark.parametrize("name", sorted(SCENES))
+def test_overlap_rows_sum_to_support_area_and_effective_areas_to_surface_area(name):
+    s = SCENES[name]()
+    settings = AtlasSettings(patch_count=800)
+    atlas = build_atlas(s, settings)
+    index = index_surfaces(s, settings)
+    C, support = overlap_matrix(atlas, index, settings.quadrature)
+    np.testing.assert_allclose(np.asarray(C.sum(axis=1)).ravel(), support, rtol=1e-9)
+    # every patch sheet is one side of the surface: sum of c_kk = area of the covered sides
+    sides = (index.sheet_table >= 0).sum(axis=1)
+    covered = float(
+        (index.charts.areas * sides[np.maximum(index.charts.chart, 0)] * (index.charts.chart >= 0)).sum()
+    )
+    assert atlas.effective_area.sum() == pytest.approx(covered, rel=5e-3)
+    assert np.all(atlas.effective_area > 0)
+    if name == "cube":
+        assert covered == pytest.approx(surface_area(s), rel=1e-12)
+
+
+def test_support_areas_match_closed_forms_on_a_cube():
+    atlas = build_atlas(scenes.cube(), AtlasSettings(patch_count=600))
+    disk = atlas.shapes == 0
+    square = ~disk
+    assert disk.any() and square.any()
+    # interior disks lie wholly on their face; squares are pulled inside the face: no clipping
+    np.testing.assert_allclose(atlas.support_area[disk], np.pi * atlas.radii[disk] ** 2, rtol=1e-3)
+    np.testing.assert_allclose(atlas.support_area[square], 4 * atlas.radii[square] ** 2, rtol=1e-3)
