@@ -116,7 +116,9 @@ class SurfaceIndex:
 
     surfaces: Surfaces
     charts: Charts
-    planar: np.ndarray  # (n_charts,) bool
+    planar: np.ndarray  # (n_charts,) bool: all triangles coplanar (to rounding)
+    flat: np.ndarray  # (n_charts,) bool: close enough to a plane for grid placement
+    deviation: np.ndarray  # (n_charts,) largest distance of a corner from the chart's mean plane
     sheet_table: np.ndarray
     sheet_chart: np.ndarray
     sheet_side: np.ndarray
@@ -129,8 +131,9 @@ class SurfaceIndex:
         return np.where((ch >= 0) & (triangle >= 0), out, -1)
 
 
-def _chart_planarity(surfaces: Surfaces, charts: Charts) -> tuple[np.ndarray, np.ndarray]:
-    """Per chart: area-weighted mean normal (n_charts, 3) and whether all its triangles are coplanar."""
+def _chart_planarity(surfaces: Surfaces, charts: Charts) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per chart: whether it is planar, whether it is flat (a modeller's slightly warped quad
+    counts), and its largest deviation from its mean plane."""
     nc = charts.count
     ok = charts.chart >= 0
     ch = charts.chart[ok]
@@ -148,7 +151,9 @@ def _chart_planarity(surfaces: Surfaces, charts: Charts) -> tuple[np.ndarray, np
     tilt = np.ones(nc)
     np.minimum.at(tilt, ch, np.einsum("ij,ij->i", charts.normals[ok], mean_n[ch]))
     planar = (worst <= 1e-6 * max(surfaces.extent, 1e-300)) & (tilt >= 1 - 1e-9)
-    return mean_n, planar
+    size = np.sqrt(np.bincount(ch, weights=w, minlength=nc))
+    flat = planar | ((worst <= 5e-3 * size) & (tilt >= np.cos(np.radians(3.0))))
+    return planar, flat, worst
 
 
 def _back_side_sees_something(surfaces: Surfaces, charts: Charts, rays, chart_ids: np.ndarray) -> np.ndarray:
@@ -187,7 +192,7 @@ def index_surfaces(surfaces: Surfaces, settings: AtlasSettings, backend: str = "
     if charts.count == 0:
         raise OvradError("every face has zero area: nothing to cover with patches")
     rays = make_rays(surfaces.vertices, surfaces.triangles, backend)
-    _, planar = _chart_planarity(surfaces, charts)
+    planar, flat, deviation = _chart_planarity(surfaces, charts)
     nc = charts.count
     chart_obj = np.zeros(nc, np.int64)
     ok = charts.chart >= 0
@@ -212,6 +217,8 @@ def index_surfaces(surfaces: Surfaces, settings: AtlasSettings, backend: str = "
         surfaces=surfaces,
         charts=charts,
         planar=planar,
+        flat=flat,
+        deviation=deviation,
         sheet_table=table,
         sheet_chart=sheet_chart,
         sheet_side=np.where(sheet_col == 0, 1, -1),
@@ -247,9 +254,10 @@ def _place_all(index: SurfaceIndex, settings: AtlasSettings, spacing: np.ndarray
         corners = s.corners[tri]
         if side < 0:
             corners = corners[:, ::-1]
-        if index.planar[c]:
+        if index.flat[c]:
             nrm = side * (ch.normals[tri] * ch.areas[tri, None]).sum(axis=0)
             p = place_planar(corners, nrm, spacing[k], settings.overlap, settings.shapes, ext)
+            p.thickness = p.thickness + 2.0 * index.deviation[c]
         else:
             p = place_curved(corners, side * ch.normals[tri], spacing[k], settings.overlap, ext, seed=int(k))
         out.append(p)
@@ -261,7 +269,7 @@ def _place_all(index: SurfaceIndex, settings: AtlasSettings, spacing: np.ndarray
 
 def _too_many(count: int, settings: AtlasSettings) -> OvradError:
     return OvradError(
-        f"these settings would make {count:,}+ patches, more than the limit of {settings.max_patches:,}; "
+        f"these settings would make about {count:,} patches, more than the limit of {settings.max_patches:,}; "
         "use a larger patch size or a smaller patch count/density, or raise the patch limit"
     )
 
@@ -284,6 +292,13 @@ def build_atlas(
     if len(index.sheet_chart) == 0:
         raise OvradError("no receiving surface: mark at least one object as a receiver")
     spacing = _sheet_spacing(index, settings)
+    ok = index.charts.chart >= 0
+    chart_area = np.bincount(
+        index.charts.chart[ok], weights=index.charts.areas[ok], minlength=index.charts.count
+    )
+    estimate = int(round(float(np.sum(chart_area[index.sheet_chart] / spacing**2))))
+    if estimate > settings.max_patches:  # refuse before allocating anything of that size
+        raise _too_many(estimate, settings)
     report(0.1, "placing patches")
     placed, total = _place_all(index, settings, spacing)
     if settings.patch_size is None and total <= settings.max_patches:

@@ -125,7 +125,8 @@ def patch_quadrature(
     (the sheet's border cuts the patch) the radius is split 8 times finer, so the cut is
     resolved closely.
     """
-    planar = index.planar[index.sheet_chart[atlas.sheet[ids]]]
+    chart = index.sheet_chart[atlas.sheet[ids]]
+    planar = index.planar[chart]
     if nb is None:
         nb = np.zeros((len(ids), 0), np.int64)
     if rings is None:
@@ -143,7 +144,7 @@ def patch_quadrature(
             weights=np.concatenate([coarse.weights[keep], fine.weights]),
             triangle=np.concatenate([coarse.triangle[keep], fine.triangle]),
         )
-    owner, x, y, w = polar_rule(atlas, ids, nb, q, planar, rings)
+    owner, x, y, w = polar_rule(atlas, ids, nb, q, index.flat[chart], rings)
     g = ids[owner]
     n = atlas.normals[g]
     t = atlas.tangents[g]

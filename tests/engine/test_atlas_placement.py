@@ -1,0 +1,151 @@
+"""Atlas placement: no leaks, scale and tessellation independence, sides, and clear errors."""
+
+import numpy as np
+import pytest
+import scenes
+
+from ovrad_addon.atlas import build_atlas, index_surfaces
+from ovrad_addon.errors import OvradError
+from ovrad_addon.overlap import alpha_at, patch_quadrature
+from ovrad_addon.settings import AtlasSettings, ObjectSettings
+from ovrad_addon.surfaces import Surfaces
+
+
+def covering(atlas, index, surfaces, side, count=20_000, seed=5):
+    """Sample points on every triangle, with the patches covering each (sparse alpha)."""
+    pts, tri = scenes.sample_surface(surfaces, count, seed)
+    return pts, tri, alpha_at(atlas, index, pts, tri, np.full(len(tri), side))
+
+
+def test_patches_never_cross_a_thin_wall_or_a_crease():
+    s = scenes.thin_wall_rooms(gap=0.01)
+    settings = AtlasSettings(patch_size=0.15, overlap=2.0)  # large patches: 15 x the wall gap
+    atlas = build_atlas(s, settings)
+    index = index_surfaces(s, settings)
+    pts, tri, a = covering(atlas, index, s, side=1)
+    rows, cols = a.nonzero()
+    # every covering patch lies on the same object and the same chart (face) as the point
+    assert np.all(atlas.source_object[cols] == s.object_index[tri[rows]])
+    assert np.all(index.sheet_chart[atlas.sheet[cols]] == index.charts.chart[tri[rows]])
+    # and the patch normal is the face's normal: no patch bends around an edge
+    np.testing.assert_allclose(
+        np.einsum("ij,ij->i", atlas.normals[cols], index.charts.normals[tri[rows]]), 1.0
+    )
+    # quadrature points of every patch stay on that patch's own face
+    q = patch_quadrature(atlas, index, np.arange(len(atlas)), settings.quadrature)
+    on = q.triangle >= 0
+    assert np.all(index.charts.chart[q.triangle[on]] == index.sheet_chart[atlas.sheet[q.owner[on]]])
+
+
+def test_front_patches_do_not_cover_the_back_of_a_two_sided_sheet():
+    v, t = scenes.plane(1.0)
+    v2, t2 = scenes.plane(1.0, z=0.5)
+    s = Surfaces.from_arrays(np.concatenate([v, v2]), np.concatenate([t, t2[:, ::-1] + len(v)]), [0, 0, 1, 1])
+    settings = AtlasSettings(
+        patch_count=200, objects=(ObjectSettings(sides="BOTH"), ObjectSettings(sides="BOTH"))
+    )
+    atlas = build_atlas(s, settings)
+    index = index_surfaces(s, settings)
+    assert len(index.sheet_chart) == 4
+    for side in (1, -1):
+        pts, tri, a = covering(atlas, index, s, side)
+        rows, cols = a.nonzero()
+        assert np.all(index.sheet_side[atlas.sheet[cols]] == side)
+        facing = index.charts.normals[tri[rows]] * side
+        assert np.all(np.einsum("ij,ij->i", atlas.normals[cols], facing) > 0.99)
+
+
+def test_auto_sides_skip_back_faces_that_see_nothing():
+    # two facing planes: each one's front sees the other, its back sees only empty space
+    v, t = scenes.plane(1.0)
+    v2, t2 = scenes.plane(1.0, z=0.5)
+    s = Surfaces.from_arrays(np.concatenate([v, v2]), np.concatenate([t, t2[:, ::-1] + len(v)]), [0, 0, 1, 1])
+    index = index_surfaces(s, AtlasSettings())
+    assert sorted(index.sheet_side.tolist()) == [1, 1]
+    # a closed cube gets its outside only
+    assert index_surfaces(scenes.cube(), AtlasSettings()).sheet_side.tolist() == [1] * 6
+    # an open box (no lid) seen from inside: the inner (back) sides see each other
+    parts = scenes.box_faces((0, 0, 0), (1, 1, 1))[:1] + scenes.box_faces((0, 0, 0), (1, 1, 1))[2:]
+    v3, t3, _ = scenes.merge(parts, obj=[0] * 5)
+    idx = index_surfaces(Surfaces.from_arrays(v3, t3), AtlasSettings())
+    assert sorted(idx.sheet_side.tolist()) == [-1] * 5 + [1] * 5
+
+
+@pytest.mark.parametrize("scale", [1e-3, 1e3])
+def test_atlas_is_unchanged_by_scene_scale(scale):
+    base = scenes.cornell()
+    scaled = Surfaces.from_arrays(
+        base.vertices * scale,
+        base.triangles,
+        base.object_index,
+        base.reflectance,
+        base.emission,
+        base.object_names,
+    )
+    a = build_atlas(base, AtlasSettings(patch_count=500))
+    b = build_atlas(scaled, AtlasSettings(patch_count=500))
+    assert len(a) == len(b)
+    np.testing.assert_allclose(b.centers / scale, a.centers, rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(b.radii / scale, a.radii, rtol=1e-6)
+    np.testing.assert_allclose(b.effective_area / scale**2, a.effective_area, rtol=1e-6)
+    np.testing.assert_array_equal(b.overlap_count, a.overlap_count)
+
+
+def test_placement_does_not_depend_on_tessellation():
+    coarse = Surfaces.from_arrays(*scenes.plane(2.0, n=1))
+    fine = Surfaces.from_arrays(*scenes.plane(2.0, n=40))  # 3200 triangles
+    a = build_atlas(coarse, AtlasSettings(patch_size=0.25))
+    b = build_atlas(fine, AtlasSettings(patch_size=0.25))
+    assert len(a) == len(b) == 64
+    np.testing.assert_allclose(np.sort(b.effective_area), np.sort(a.effective_area), rtol=1e-6)
+
+
+def test_degenerate_triangles_are_ignored_and_the_rest_covered():
+    s0 = scenes.cube()
+    v = np.concatenate([s0.vertices, [[0.5, 0.5, 1.0], [0.5, 0.5, 1.0]]])
+    t = np.concatenate([s0.triangles, [[8, 9, 9], [0, 1, 1]]])  # zero-area triangles
+    s = Surfaces.from_arrays(v, t)
+    settings = AtlasSettings(patch_count=300)
+    atlas = build_atlas(s, settings)
+    index = index_surfaces(s, settings)
+    assert np.all(index.charts.chart[-2:] == -1)
+    pts, tri, a = covering(atlas, index, s, side=1, count=100_000)
+    assert np.asarray(a.sum(axis=1)).min() == pytest.approx(1.0)
+
+
+def test_curved_surface_patches_follow_the_sphere():
+    s = scenes.sphere(radius=1.0, subdivisions=4)
+    atlas = build_atlas(s, AtlasSettings(patch_count=400))
+    np.testing.assert_allclose(np.linalg.norm(atlas.centers, axis=1), 1.0, atol=0.01)
+    cos = np.einsum(
+        "ij,ij->i", atlas.normals, atlas.centers / np.linalg.norm(atlas.centers, axis=1, keepdims=True)
+    )
+    assert cos.min() > 0.99
+    assert 300 < len(atlas) < 700
+
+
+@pytest.mark.parametrize(
+    "make, message",
+    [
+        (lambda: Surfaces.from_arrays(np.full((3, 3), np.nan), [[0, 1, 2]]), "NaN"),
+        (lambda: Surfaces.from_arrays(np.zeros((0, 3)), np.zeros((0, 3))), "no triangles"),
+        (
+            lambda: build_atlas(Surfaces.from_arrays(np.zeros((3, 3)), [[0, 1, 2]]), AtlasSettings()),
+            "zero area",
+        ),
+        (
+            lambda: build_atlas(scenes.cube(), AtlasSettings(patch_size=0.001, max_patches=10_000)),
+            "6,000,000",
+        ),
+        (lambda: AtlasSettings(overlap=0.8), "overlap"),
+        (lambda: Surfaces.from_arrays(*scenes.plane(), reflectance=[1.5, 0, 0]), "reflectance"),
+    ],
+)
+def test_unusable_input_gives_a_clear_error(make, message):
+    with pytest.raises(OvradError, match=message):
+        make()
+
+
+def test_too_many_patches_is_refused_before_building_them():
+    with pytest.raises(OvradError, match="patches, more than the limit of 200,000"):
+        build_atlas(scenes.cube(), AtlasSettings(patch_size=1e-4))
