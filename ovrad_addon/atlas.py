@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, fields, replace
+from functools import cached_property
 
 import numpy as np
 
@@ -17,7 +18,7 @@ from .surfaces import Charts, Surfaces, find_charts
 Progress = Callable[[float, str], bool] | None
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Atlas:
     """n patches; every array has n rows.
 
@@ -47,10 +48,15 @@ class Atlas:
     def __len__(self) -> int:
         return len(self.centers)
 
-    @property
+    @cached_property
     def bounding_radii(self) -> np.ndarray:
         """(n,) radius of the smallest ball around the centre holding the whole patch."""
         return self.radii * np.where(self.shapes == names.SHAPE_SQUARE, np.sqrt(2.0), 1.0)
+
+    @cached_property
+    def bitangents(self) -> np.ndarray:
+        """(n, 3) second in-plane axis, normal x tangent."""
+        return np.cross(self.normals, self.tangents)
 
     def select(self, mask) -> Atlas:
         """The patches where mask is true (or the given indices), same beta."""

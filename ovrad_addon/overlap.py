@@ -65,7 +65,7 @@ def polar_rule(atlas, ids: np.ndarray, nb: np.ndarray, q: int, planar: np.ndarra
     cuts = [np.zeros((k, n_t, 1)), ring, rmax[..., None]]
     if nb.shape[1]:
         t_h, n_h = atlas.tangents[ids], atlas.normals[ids]
-        b_h = np.cross(n_h, t_h)
+        b_h = atlas.bitangents[ids]
         ok = (nb >= 0) & planar[:, None]
         j = np.maximum(nb, 0)
         rel = atlas.centers[j] - atlas.centers[ids][:, None]
@@ -106,7 +106,8 @@ def polar_rule(atlas, ids: np.ndarray, nb: np.ndarray, q: int, planar: np.ndarra
     keep = hi > lo + 1e-12 * r[..., None]
     kk, tt, _ = np.nonzero(keep)
     lo, hi = lo[keep], hi[keep]
-    gx, gw = _gauss(2)
+    # alpha is constant on each piece with box beta: one point per piece is exact there
+    gx, gw = _gauss(1 if atlas.beta == "box" else 2)
     rho = lo[:, None] + (hi - lo)[:, None] * gx[None]
     w = dtheta[kk, tt][:, None] * (hi - lo)[:, None] * gw[None] * rho
     owner = np.repeat(kk, len(gx))
@@ -148,7 +149,7 @@ def patch_quadrature(
     g = ids[owner]
     n = atlas.normals[g]
     t = atlas.tangents[g]
-    b = np.cross(n, t)
+    b = atlas.bitangents[g]
     plane = atlas.centers[g] + x[:, None] * t + y[:, None] * b
     lift = atlas.thickness[g] * 1.0001
     origins = plane + lift[:, None] * n
@@ -188,15 +189,16 @@ def neighbour_pairs(atlas) -> tuple[np.ndarray, np.ndarray]:
 
 
 def overlap_matrix(
-    atlas, index, q: int, progress: Callable[[float], None] | None = None, chunk_points: int = 1_500_000
+    atlas, index, q: int, progress: Callable[[float], None] | None = None, chunk_points: int = 8_000_000
 ) -> tuple[csr_matrix, np.ndarray]:
     """C (n x n sparse, C[h, i] = c_ih) and the support areas A_h (n,)."""
     n = len(atlas)
     ph, pi = neighbour_pairs(atlas)
     start = np.searchsorted(ph, np.arange(n + 1))
     deg = np.diff(start)
-    # rule points per patch grow with its neighbours (rim crossings): size chunks by that
-    per_chunk = max(1, chunk_points // max(int(8 * q * (deg.max() + q // 4 + 1)), 1))
+    # rule points per patch grow with its neighbours (rim crossings), and each point is paired
+    # with every neighbour: size chunks so the pairs stay within budget
+    per_chunk = max(1, chunk_points // max(int(8 * q * (deg.max() + q // 4 + 1) * deg.max()), 1))
     rows, cols, vals = [], [], []
     support = np.zeros(n)
     for s0 in range(0, n, per_chunk):

@@ -22,13 +22,10 @@ def local_coords(patches, idx: np.ndarray, points: np.ndarray) -> tuple[np.ndarr
     Each row pairs one point with one patch; all arrays (m,).
     """
     rel = points - patches.centers[idx]
-    t = patches.tangents[idx]
-    n = patches.normals[idx]
-    b = np.cross(n, t)
     return (
-        np.einsum("ij,ij->i", rel, t),
-        np.einsum("ij,ij->i", rel, b),
-        np.einsum("ij,ij->i", rel, n),
+        np.einsum("ij,ij->i", rel, patches.tangents[idx]),
+        np.einsum("ij,ij->i", rel, patches.bitangents[idx]),
+        np.einsum("ij,ij->i", rel, patches.normals[idx]),
     )
 
 
@@ -52,16 +49,22 @@ def beta_of(
 
 def pair_beta(patches, idx, points, normals, sheets, beta: str) -> tuple[np.ndarray, np.ndarray]:
     """Membership (m,) bool and beta (m,) for paired rows (point j, patch idx[j])."""
-    x, y, h = local_coords(patches, idx, points)
-    inside, b = beta_of(patches, idx, x, y, beta)
-    cos = np.einsum("ij,ij->i", normals, patches.normals[idx])
-    member = (
-        inside
-        & (sheets == patches.sheet[idx])
-        & (cos >= patches.min_cos[idx])
-        & (np.abs(h) <= patches.thickness[idx])
-    )
-    return member, np.where(member, b, 0.0)
+    member = np.zeros(len(idx), bool)
+    b = np.zeros(len(idx))
+    # Cheap rejections first (sheet, then distance to the centre), full test on what is left.
+    near = sheets == patches.sheet[idx]
+    cand = np.flatnonzero(near)
+    rel = points[cand] - patches.centers[idx[cand]]
+    br = patches.bounding_radii[idx[cand]]
+    cand = cand[np.einsum("ij,ij->i", rel, rel) <= br * br * (1 + 1e-12)]
+    i = idx[cand]
+    x, y, h = local_coords(patches, i, points[cand])
+    inside, bb = beta_of(patches, i, x, y, beta)
+    cos = np.einsum("ij,ij->i", normals[cand], patches.normals[i])
+    ok = inside & (cos >= patches.min_cos[i]) & (np.abs(h) <= patches.thickness[i])
+    member[cand] = ok
+    b[cand] = np.where(ok, bb, 0.0)
+    return member, b
 
 
 def alpha_from_pairs(

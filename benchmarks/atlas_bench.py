@@ -1,0 +1,88 @@
+"""Benchmark: atlas generation and overlap-matrix (C) time and peak memory at 1k, 10k and 100k patches.
+
+Run: .venv/bin/python benchmarks/atlas_bench.py [--sizes 1000 10000 100000]
+Each size runs in its own process so peak memory (max RSS) is that size's alone.
+Writes benchmarks/results/atlas.csv and prints a table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+OUT = ROOT / "benchmarks" / "results" / "atlas.csv"
+
+
+def one(count: int, beta: str) -> dict:
+    sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+    import scenes
+
+    from ovrad_addon.atlas import build_atlas
+    from ovrad_addon.rays import has_embree
+    from ovrad_addon.settings import AtlasSettings
+
+    s = scenes.cornell()
+    marks = {}
+
+    def progress(f, msg):
+        marks.setdefault(msg.split(" ")[0], time.perf_counter())
+        return True
+
+    t0 = time.perf_counter()
+    atlas = build_atlas(s, AtlasSettings(patch_count=count, beta=beta), progress=progress)
+    t1 = time.perf_counter()
+    t_int = marks.get("integrating", t1)
+    return {
+        "target": count,
+        "beta": beta,
+        "patches": len(atlas),
+        "generate_s": round(t_int - t0, 3),
+        "overlap_C_s": round(t1 - t_int, 3),
+        "total_s": round(t1 - t0, 3),
+        "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
+        "mean_overlap": round(float(atlas.overlap_count.mean()), 2),
+        "rays": "embree" if has_embree() else "numpy",
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--sizes", type=int, nargs="+", default=[1000, 10000, 100000])
+    ap.add_argument("--beta", default="smooth")
+    ap.add_argument("--one", type=int, help=argparse.SUPPRESS)
+    a = ap.parse_args()
+    if a.one:
+        print(json.dumps(one(a.one, a.beta)))
+        return
+    rows = []
+    for n in a.sizes:
+        out = subprocess.run(
+            [sys.executable, __file__, "--one", str(n), "--beta", a.beta],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
+        r = rows[-1]
+        print(
+            f"{r['patches']:>7} patches  generate {r['generate_s']:7.2f} s  C {r['overlap_C_s']:7.2f} s  "
+            f"peak {r['peak_rss_mb']:7.1f} MB  mean overlap {r['mean_overlap']}",
+            flush=True,
+        )
+    OUT.parent.mkdir(parents=True, exist_ok=True)
+    with OUT.open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    print(f"wrote {OUT.relative_to(ROOT)}")
+
+
+if __name__ == "__main__":
+    main()
