@@ -29,6 +29,7 @@ class Quadrature:
     normals: np.ndarray
     weights: np.ndarray
     triangle: np.ndarray
+    cand: np.ndarray  # (m, M) bool: neighbour slots (of the nb given) that may contain the point
 
 
 def _gauss(n_sub: int) -> tuple[np.ndarray, np.ndarray]:
@@ -37,13 +38,15 @@ def _gauss(n_sub: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def polar_rule(atlas, ids: np.ndarray, nb: np.ndarray, q: int, planar: np.ndarray, rings: int):
-    """Polar rule on each patch: (owner, x, y, w) flat, in the patch's plane coordinates.
+    """Polar rule on each patch: (owner, x, y, w, cand) flat, in the patch's plane coordinates.
 
     Along each of 4q rays from the centre, the radius is split at every crossing of a
     neighbour's rim (nb (k, M) neighbour indices, -1 padding; used on planar sheets, where
     rims are exact circles and squares in the plane) and at `rings` equal-area rings. alpha is then
     smooth inside each piece, so two Gauss points per piece integrate it (and a box-beta
     alpha, constant on each piece, exactly); the angular rule is the only approximation left.
+    cand (m, M) marks the neighbours that may contain each rule point: on planar sheets the
+    rim crossings already tell, elsewhere every neighbour is a candidate.
     """
     k = len(ids)
     n_t = 4 * q
@@ -63,6 +66,7 @@ def polar_rule(atlas, ids: np.ndarray, nb: np.ndarray, q: int, planar: np.ndarra
     rmax = np.where(square, r / np.maximum(np.abs(ux), np.abs(uy)), r)  # (k, n_t)
     ring = np.sqrt(np.arange(1, rings) / rings)[None, None, :] * rmax[..., None]
     cuts = [np.zeros((k, n_t, 1)), ring, rmax[..., None]]
+    spans = None
     if nb.shape[1]:
         t_h, n_h = atlas.tangents[ids], atlas.normals[ids]
         b_h = atlas.bitangents[ids]
@@ -100,7 +104,8 @@ def polar_rule(atlas, ids: np.ndarray, nb: np.ndarray, q: int, planar: np.ndarra
         big = rmax[:, None]
         c_in = np.where(hit, np.clip(c_in, 0.0, big), big)
         c_out = np.where(hit, np.clip(c_out, 0.0, big), big)
-        cuts += [np.moveaxis(c_in, 1, 2), np.moveaxis(c_out, 1, 2)]
+        spans = (np.moveaxis(c_in, 1, 2), np.moveaxis(c_out, 1, 2), np.moveaxis(hit, 1, 2))
+        cuts += list(spans[:2])
     bp = np.sort(np.concatenate(cuts, axis=2), axis=2)
     lo, hi = bp[..., :-1], bp[..., 1:]
     keep = hi > lo + 1e-12 * r[..., None]
@@ -112,8 +117,17 @@ def polar_rule(atlas, ids: np.ndarray, nb: np.ndarray, q: int, planar: np.ndarra
     w = dtheta[kk, tt][:, None] * (hi - lo)[:, None] * gw[None] * rho
     owner = np.repeat(kk, len(gx))
     th = np.repeat(theta[kk, tt], len(gx))
+    if spans is None:
+        cand = np.zeros((len(kk), 0), bool)
+    else:
+        mid = (0.5 * (lo + hi))[:, None]
+        tol = 1e-9 * r[kk]
+        c_in, c_out, hit = (a[kk, tt] for a in spans)
+        inside = hit & (c_in - tol < mid) & (mid < c_out + tol)
+        cand = np.where(planar[kk][:, None], inside, nb[kk] >= 0)
+    cand = np.repeat(cand, len(gx), axis=0)
     rho = rho.ravel()
-    return owner, rho * np.cos(th), rho * np.sin(th), w.ravel()
+    return owner, rho * np.cos(th), rho * np.sin(th), w.ravel(), cand
 
 
 def patch_quadrature(
@@ -144,8 +158,9 @@ def patch_quadrature(
             normals=np.concatenate([coarse.normals[keep], fine.normals]),
             weights=np.concatenate([coarse.weights[keep], fine.weights]),
             triangle=np.concatenate([coarse.triangle[keep], fine.triangle]),
+            cand=np.concatenate([coarse.cand[keep], fine.cand]),
         )
-    owner, x, y, w = polar_rule(atlas, ids, nb, q, index.flat[chart], rings)
+    owner, x, y, w, cand = polar_rule(atlas, ids, nb, q, index.flat[chart], rings)
     g = ids[owner]
     n = atlas.normals[g]
     t = atlas.tangents[g]
@@ -169,6 +184,7 @@ def patch_quadrature(
         normals=tri_n,
         weights=np.where(ok, w * jac, 0.0),
         triangle=np.where(ok, tri, -1),
+        cand=cand,
     )
 
 
@@ -210,11 +226,10 @@ def overlap_matrix(
         nb = np.where(nb == ids[:, None], -1, nb)
         quad = patch_quadrature(atlas, index, ids, q, nb)
         support[ids] = np.bincount(quad.owner, weights=quad.weights, minlength=len(ids))
-        # Pair every rule point with every neighbour (and itself) of its patch.
-        cnt = (hi - lo)[quad.owner]
-        prow = np.repeat(np.arange(len(quad.owner)), cnt)
-        first = np.repeat(lo[quad.owner], cnt)
-        pcol = pi[first + np.arange(len(prow)) - np.repeat(np.cumsum(cnt) - cnt, cnt)]
+        # Pair every rule point with its own patch and the neighbours that may contain it.
+        pt, slot = np.nonzero(quad.cand)
+        prow = np.concatenate([np.arange(len(quad.owner)), pt])
+        pcol = np.concatenate([ids[quad.owner], nb[quad.owner[pt], slot]])
         sheets = np.where(quad.triangle >= 0, atlas.sheet[ids[quad.owner]], -1)
         member, b = pair_beta(atlas, pcol, quad.points[prow], quad.normals[prow], sheets[prow], atlas.beta)
         alpha = alpha_from_pairs(prow, pcol, member, b, (len(quad.owner), n)).tocoo()
