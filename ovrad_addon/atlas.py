@@ -7,6 +7,7 @@ from dataclasses import dataclass, fields, replace
 from functools import cached_property
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from . import names
 from .errors import OvradError
@@ -52,6 +53,11 @@ class Atlas:
     def bounding_radii(self) -> np.ndarray:
         """(n,) radius of the smallest ball around the centre holding the whole patch."""
         return self.radii * np.where(self.shapes == names.SHAPE_SQUARE, np.sqrt(2.0), 1.0)
+
+    @cached_property
+    def tree(self) -> cKDTree:
+        """KD-tree of the patch centres."""
+        return cKDTree(self.centers)
 
     @cached_property
     def bitangents(self) -> np.ndarray:
@@ -255,7 +261,7 @@ def _place_all(index: SurfaceIndex, settings: AtlasSettings, spacing: np.ndarray
     ext = s.extent
     out = []
     total = 0
-    for k, (c, side) in enumerate(zip(index.sheet_chart, index.sheet_side)):
+    for k, (c, side) in enumerate(zip(index.sheet_chart, index.sheet_side, strict=True)):
         tri = np.flatnonzero(ch.chart == c)
         corners = s.corners[tri]
         if side < 0:
@@ -275,7 +281,8 @@ def _place_all(index: SurfaceIndex, settings: AtlasSettings, spacing: np.ndarray
 
 def _too_many(count: int, settings: AtlasSettings) -> OvradError:
     return OvradError(
-        f"these settings would make about {count:,} patches, more than the limit of {settings.max_patches:,}; "
+        f"these settings would make about {count:,} patches, "
+        f"more than the limit of {settings.max_patches:,}; "
         "use a larger patch size or a smaller patch count/density, or raise the patch limit"
     )
 
@@ -339,6 +346,11 @@ def build_atlas(
     C, support = overlap_matrix(
         atlas, index, settings.quadrature, progress=lambda f: report(0.2 + 0.8 * f, "integrating overlaps")
     )
+    if np.any(support <= 0):
+        # Patches with no support on their sheet: a face lying on another (a box's bottom on
+        # the floor) is hidden by it, and light can never reach it. Drop them, integrate again.
+        atlas = atlas.select(support > 0)
+        C, support = overlap_matrix(atlas, index, settings.quadrature)
     nz = (C + C.T).tocsr()
     nz.data[:] = 1
     counts = np.diff(nz.indptr) - (C.diagonal() > 0)

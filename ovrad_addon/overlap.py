@@ -13,7 +13,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix
-from scipy.spatial import cKDTree
 
 from .support import SHAPE_SQUARE, alpha_from_pairs, pair_beta
 
@@ -68,7 +67,7 @@ def polar_rule(atlas, ids: np.ndarray, nb: np.ndarray, q: int, planar: np.ndarra
     cuts = [np.zeros((k, n_t, 1)), ring, rmax[..., None]]
     spans = None
     if nb.shape[1]:
-        t_h, n_h = atlas.tangents[ids], atlas.normals[ids]
+        t_h = atlas.tangents[ids]
         b_h = atlas.bitangents[ids]
         ok = (nb >= 0) & planar[:, None]
         j = np.maximum(nb, 0)
@@ -191,7 +190,7 @@ def patch_quadrature(
 def neighbour_pairs(atlas) -> tuple[np.ndarray, np.ndarray]:
     """All (h, i) on the same sheet whose bounding balls intersect, h == i included."""
     br = atlas.bounding_radii
-    tree = cKDTree(atlas.centers)
+    tree = atlas.tree
     pairs = tree.query_pairs(2.0 * float(br.max()), output_type="ndarray")
     a, b = pairs[:, 0], pairs[:, 1]
     d = np.linalg.norm(atlas.centers[a] - atlas.centers[b], axis=1)
@@ -243,6 +242,32 @@ def overlap_matrix(
     return C, support
 
 
+def candidate_patches(atlas, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(row, patch) pairs: every patch whose bounding ball may contain each point.
+
+    A point inside patch h is covered by at most overlap_count_h + 1 patches, so the nearest
+    K = max overlap + 2 centres usually hold them all; rows where all K were within reach
+    (there may be more) are asked again for every centre within reach.
+    """
+    tree = atlas.tree
+    reach = float(atlas.bounding_radii.max()) * (1 + 1e-9)
+    k = int(min(len(atlas), max(int(atlas.overlap_count.max(initial=0)) + 2, 8)))
+    _, idx = tree.query(points, k=k, distance_upper_bound=reach)
+    idx = idx.reshape(len(points), k)
+    full = idx[:, -1] < len(atlas)
+    if k < len(atlas) and full.any():
+        extra = np.flatnonzero(full)
+        lists = tree.query_ball_point(points[extra], reach)
+        lens = np.fromiter((len(x) for x in lists), np.int64, len(extra))
+        more_c = np.concatenate([np.asarray(x, np.int64) for x in lists])
+        more_r = np.repeat(extra, lens)
+        idx[full] = len(atlas)
+    else:
+        more_r = more_c = np.zeros(0, np.int64)
+    r, c = np.nonzero(idx < len(atlas))
+    return np.concatenate([r, more_r]), np.concatenate([idx[r, c], more_c])
+
+
 def alpha_at(atlas, index, points: np.ndarray, triangle: np.ndarray, side) -> csr_matrix:
     """alpha_i at surface points (m x n sparse): points (m, 3) on `triangle` (m,), seen from side (m,) +-1."""
     pts = np.asarray(points, np.float64).reshape(-1, 3)
@@ -250,11 +275,7 @@ def alpha_at(atlas, index, points: np.ndarray, triangle: np.ndarray, side) -> cs
     side = np.broadcast_to(np.asarray(side), tri.shape)
     sheets = index.sheet_of(tri, side)
     nrm = index.charts.normals[np.maximum(tri, 0)] * np.where(side < 0, -1.0, 1.0)[:, None]
-    tree = cKDTree(atlas.centers)
-    lists = tree.query_ball_point(pts, float(atlas.bounding_radii.max()) * (1 + 1e-9))
-    lens = np.fromiter((len(x) for x in lists), np.int64, len(pts))
-    cols = np.concatenate([np.asarray(x, np.int64) for x in lists]) if len(pts) else np.zeros(0, np.int64)
-    rows = np.repeat(np.arange(len(pts)), lens)
+    rows, cols = candidate_patches(atlas, pts)
     member, b = pair_beta(atlas, cols, pts[rows], nrm[rows], sheets[rows], atlas.beta)
     return alpha_from_pairs(rows, cols, member, b, (len(pts), len(atlas)))
 
@@ -262,3 +283,16 @@ def alpha_at(atlas, index, points: np.ndarray, triangle: np.ndarray, side) -> cs
 def reconstruct(alpha: csr_matrix, values: np.ndarray) -> np.ndarray:
     """f(M) = sum_i alpha_i(M) f_i for per-patch values (n,) or (n, c); 0 where no patch covers M."""
     return alpha @ np.asarray(values, np.float64)
+
+
+def patch_average(atlas, index, per_triangle: np.ndarray, q: int = 4) -> np.ndarray:
+    """Area-weighted mean over each patch's support of a per-triangle quantity (T, c) -> (n, c)."""
+    vals = np.asarray(per_triangle, np.float64)
+    ids = np.arange(len(atlas))
+    quad = patch_quadrature(atlas, index, ids, q, rings=max(q // 2, 1))
+    on = quad.weights > 0
+    w = quad.weights[on]
+    acc = np.zeros((len(atlas), vals.shape[1]))
+    np.add.at(acc, quad.owner[on], vals[quad.triangle[on]] * w[:, None])
+    area = np.bincount(quad.owner[on], weights=w, minlength=len(atlas))
+    return acc / np.maximum(area, 1e-300)[:, None]

@@ -180,7 +180,7 @@ def place_planar(
 
 
 def sample_triangles(corners: np.ndarray, spacing: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """Stratified-random surface samples about `spacing` apart, plus every corner: (points (s,3), triangle (s,))."""
+    """Random surface samples about `spacing` apart, plus every corner: (points (s, 3), triangle (s,))."""
     a = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
     count = np.maximum(np.ceil(a / spacing**2), 1).astype(np.int64)
     tri = np.repeat(np.arange(len(corners)), count)

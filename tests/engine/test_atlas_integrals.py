@@ -2,8 +2,8 @@
 
 import numpy as np
 import pytest
-import scenes
 
+import scenes
 from ovrad_addon.atlas import Atlas, build_atlas, index_surfaces
 from ovrad_addon.overlap import alpha_at, overlap_matrix, reconstruct
 from ovrad_addon.settings import AtlasSettings

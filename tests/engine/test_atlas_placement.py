@@ -2,8 +2,8 @@
 
 import numpy as np
 import pytest
-import scenes
 
+import scenes
 from ovrad_addon.atlas import build_atlas, index_surfaces
 from ovrad_addon.errors import OvradError
 from ovrad_addon.overlap import alpha_at, patch_quadrature

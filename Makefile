@@ -1,0 +1,68 @@
+# Developer tasks for the ovrad Blender extension. `make test` and `make demo` work from a fresh
+# clone: they create .venv first. Targets: venv wheels build test demo scene lint format clean.
+
+SHELL := /bin/bash
+.DEFAULT_GOAL := test
+
+# bpy 5.0.x exists for Python 3.11 only: prefer an explicit python3.11.
+PYTHON ?= $(shell command -v python3.11 || command -v python3)
+VENV := .venv
+PY := $(VENV)/bin/python
+# Re-installs only when the requirements change (or the venv is new).
+VENV_STAMP := $(VENV)/.stamp-requirements
+
+BLENDER := scripts/blender
+LINUX_ZIP_CMD := $(PY) scripts/build_extension.py --split-platforms --platform linux-x64 -q --no-fetch
+# `make demo` keeps its own Blender user folder (installed extension, preferences) under out/.
+DEMO_USER := $(CURDIR)/out/blender-user
+DEMO_ENV := env -u BLENDER_USER_CONFIG -u BLENDER_USER_SCRIPTS -u BLENDER_USER_EXTENSIONS \
+	-u BLENDER_USER_DATAFILES BLENDER_USER_RESOURCES=$(DEMO_USER)
+
+.PHONY: venv wheels build test demo scene lint format clean
+
+venv: $(VENV_STAMP)
+
+$(VENV_STAMP): requirements-dev.txt
+	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' || \
+		{ echo "error: $(PYTHON) is not Python 3.11 (bpy 5.0 needs it); set PYTHON=..." >&2; exit 1; }
+	@# A venv left half-made (no pip) by an earlier failure is made again from scratch.
+	@if ! $(PY) -m pip --version >/dev/null 2>&1; then \
+		echo "creating $(VENV) with $(PYTHON)"; \
+		$(PYTHON) -m venv --clear $(VENV); \
+	fi
+	$(PY) -m pip install --disable-pip-version-check -q -r requirements-dev.txt
+	@touch $@
+
+# Wheels the extension ships (blender_manifest.toml); already-present files are skipped.
+wheels: venv
+	$(PY) scripts/fetch_wheels.py
+
+# One zip per platform in dist/; rebuilt only when a packed file is newer than the zip.
+build: venv
+	$(PY) scripts/build_extension.py --split-platforms
+
+test: venv build
+	$(PY) -m pytest -q tests
+
+demo: venv build
+	@mkdir -p out
+	$(DEMO_ENV) $(BLENDER) -b -c extension install-file -r user_default -e "$$($(LINUX_ZIP_CMD))"
+	$(DEMO_ENV) $(BLENDER) -b scenes/cornell.blend --python-exit-code 1 -P scripts/ovrad_demo.py -- \
+		--output out/cornell_ovrad.blend --picture out/cornell_ovrad.png
+
+# Rebuild the bundled Cornell box (deterministic; commit the result).
+scene: venv
+	$(BLENDER) -b --python-exit-code 1 --python scripts/make_cornell.py -- --output scenes/cornell.blend
+
+lint: venv
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
+
+format: venv
+	$(VENV)/bin/ruff check --fix .
+	$(VENV)/bin/ruff format .
+
+clean:
+	rm -rf dist out build .pytest_cache .ruff_cache
+	find . -path ./$(VENV) -prune -o -name __pycache__ -type d -print0 | xargs -0 rm -rf
+	@echo "kept $(VENV)/ and wheels/ (downloads): rm -rf them by hand to start over"

@@ -1,0 +1,118 @@
+"""Operators: Generate Atlas on the selected meshes, and switch what atlas patches are coloured by."""
+
+from __future__ import annotations
+
+import time
+from contextlib import contextmanager
+
+import bpy
+from bpy.props import EnumProperty
+
+from ..ovrad_addon.atlas import build_atlas
+from ..ovrad_addon.errors import OvradError
+from . import attributes, display, properties, scene_io
+
+
+@contextmanager
+def _progress(context):
+    """A progress callback for the engine: the window's progress cursor when there is a UI, else nothing."""
+    wm = context.window_manager
+    shown = context.window is not None and not bpy.app.background
+    if shown:
+        wm.progress_begin(0, 1000)
+
+    def update(fraction: float, message: str) -> bool:
+        if shown:
+            wm.progress_update(int(1000 * min(max(fraction, 0.0), 1.0)))
+        return True
+
+    try:
+        yield update
+    finally:
+        if shown:
+            wm.progress_end()
+
+
+class OVRAD_OT_generate_atlas(bpy.types.Operator):
+    bl_idname = "ovrad.generate_atlas"
+    bl_label = "Generate Atlas"
+    bl_description = (
+        "Cover the selected meshes (modifiers applied) with overlapping patches: one atlas object per mesh "
+        "in the 'ovrad' collection, replacing that mesh's previous atlas"
+    )
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        if context.mode != "OBJECT":
+            cls.poll_message_set("Switch to Object Mode to generate an atlas")
+            return False
+        if not any(o.type == "MESH" and not attributes.is_atlas(o) for o in context.selected_objects):
+            cls.poll_message_set("Select at least one mesh object to generate an atlas")
+            return False
+        return True
+
+    def execute(self, context):
+        start = time.perf_counter()
+        scene = context.scene
+        selected = list(context.selected_objects)
+        active = context.view_layer.objects.active
+        # Everything that can fail runs before the first write, so an error leaves the file as it was.
+        try:
+            depsgraph = context.evaluated_depsgraph_get()
+            meshes = scene_io.read_scene(depsgraph, selected, scene_io.default_occluders(context, selected))
+            settings = properties.atlas_settings(scene.ovrad, meshes.objects)
+            with _progress(context) as progress:
+                atlas = build_atlas(meshes.surfaces, settings, progress=progress)
+        except OvradError as e:
+            self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        parts = [
+            (obj.name, atlas.select(atlas.source_object == i))
+            for i, obj in enumerate(meshes.objects[: meshes.n_receivers])
+        ]
+        for w in meshes.warnings:
+            self.report({"WARNING"}, w)
+        for name, part in parts:
+            if len(part) == 0:
+                self.report({"WARNING"}, f"'{name}' got no patches (no face of it can be covered)")
+            obj = attributes.write_atlas(scene, name, part)
+            display.ensure_modifier(obj, part.beta)
+            display.set_quantity(obj, scene.ovrad.display_quantity)
+        # New objects are not selected, but keep the user's selection exactly as it was regardless.
+        chosen = set(selected)
+        for obj in context.view_layer.objects:
+            if obj.select_get() != (obj in chosen):
+                obj.select_set(obj in chosen)
+        if context.view_layer.objects.active != active:
+            context.view_layer.objects.active = active
+        seconds = time.perf_counter() - start
+        self.report({"INFO"}, f"ovrad: {len(atlas):,} patches on {len(parts)} object(s) in {seconds:.2f} s")
+        return {"FINISHED"}
+
+
+class OVRAD_OT_set_display(bpy.types.Operator):
+    bl_idname = "ovrad.set_display"
+    bl_label = "Set Patch Display"
+    bl_description = "Colour the patches of every atlas object in the scene by the chosen quantity"
+    bl_options = {"REGISTER", "UNDO"}
+
+    quantity: EnumProperty(
+        name="Quantity",
+        items=[(q, q.title(), "") for q in display.QUANTITIES],
+        default="OVERLAP",
+    )
+
+    def execute(self, context):
+        changed = sum(
+            display.set_quantity(obj, self.quantity)
+            for obj in context.scene.objects
+            if attributes.is_atlas(obj)
+        )
+        # Assigning the scene setting keeps the panel in step (its update does the same for every atlas).
+        context.scene.ovrad.display_quantity = self.quantity
+        self.report({"INFO"}, f"ovrad: {changed} atlas object(s) coloured by {self.quantity.lower()}")
+        return {"FINISHED"}
+
+
+classes = (OVRAD_OT_generate_atlas, OVRAD_OT_set_display)
