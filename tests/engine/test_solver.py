@@ -1,0 +1,145 @@
+"""Transport by hemisphere gathering and the solver of (C - R) B = C E, against exact answers."""
+
+import numpy as np
+import pytest
+
+import scenes
+from ovrad_addon.atlas import build_atlas, index_surfaces
+from ovrad_addon.errors import OvradError
+from ovrad_addon.overlap import alpha_at, overlap_matrix, patch_average, reconstruct
+from ovrad_addon.settings import AtlasSettings
+from ovrad_addon.solver import solve_direct, solve_progressive
+from ovrad_addon.surfaces import Surfaces
+from ovrad_addon.transport import gather_transport
+
+
+def prepare(surfaces, **settings):
+    st = AtlasSettings(**settings)
+    atlas = build_atlas(surfaces, st)
+    index = index_surfaces(surfaces, st)
+    C, _ = overlap_matrix(atlas, index, st.quadrature)
+    T = gather_transport(atlas, index)
+    E = np.pi * patch_average(atlas, index, surfaces.emission)  # exitance from radiance
+    return atlas, index, C, T, E
+
+
+def radiance_at_samples(atlas, index, surfaces, B, count=20_000):
+    pts, tri = scenes.sample_surface(surfaces, count, seed=11)
+    return reconstruct(alpha_at(atlas, index, pts, tri, 1), B) / np.pi
+
+
+def uniform(s, rho, le=1.0):
+    return Surfaces.from_arrays(s.vertices, s.triangles, reflectance=[rho] * 3, emission=[le] * 3)
+
+
+def inward_sphere():
+    s = scenes.sphere(radius=1.0, subdivisions=3)
+    return Surfaces.from_arrays(s.vertices, s.triangles[:, ::-1])
+
+
+@pytest.mark.parametrize("shape", ["cube", "sphere"])
+@pytest.mark.parametrize("rho", [0.5, 0.9, 0.99])
+@pytest.mark.parametrize("beta, overlap", [("box", 1.0), ("box", 2.0), ("smooth", 1.3), ("smooth", 2.0)])
+def test_furnace_converges_to_le_over_one_minus_rho(shape, rho, beta, overlap):
+    base = scenes.cube(inward=True) if shape == "cube" else inward_sphere()
+    s = uniform(base, rho)
+    atlas, index, C, T, E = prepare(s, patch_count=150, beta=beta, overlap=overlap)
+    state = solve_progressive(C, T, E, tolerance=1e-5)
+    assert state.converged
+    L = radiance_at_samples(atlas, index, s, state.radiosity)
+    exact = 1.0 / (1.0 - rho)  # closed room, uniform L_e = 1: L = L_e / (1 - rho)
+    # the issue asks 1 % (5 % at rho = 0.99); closure is exact by construction, measured ~1e-4
+    np.testing.assert_allclose(L, exact, rtol=2e-3)
+
+
+def test_classical_limit_equals_classical_radiosity_on_the_same_patches():
+    # zero overlap, box beta, squares tiling the faces: C is diagonal (the patch areas)
+    s0 = scenes.cube(inward=True)
+    em = np.zeros((len(s0.triangles), 3))
+    em[2:4] = [5.0, 4.0, 3.0]  # one face glows
+    s = Surfaces.from_arrays(s0.vertices, s0.triangles, reflectance=[0.6, 0.5, 0.4], emission=em)
+    atlas, index, C, T, E = prepare(s, patch_size=0.25, overlap=1.0, beta="box", shapes="SQUARES")
+    assert len(atlas) == 96
+    off = C - np.diag(C.diagonal())
+    assert np.abs(off).max() < 1e-12 * C.diagonal().max()
+    A = C.diagonal()
+    np.testing.assert_allclose(A, 0.0625, rtol=1e-12)
+    # classical radiosity B = E + rho F B with F_hk = G_hk / A_h, solved densely, per channel
+    F = T.geometric.toarray() / A[:, None]
+    classical = np.column_stack(
+        [np.linalg.solve(np.eye(len(A)) - T.rho[:, [j]] * F, E[:, j]) for j in range(3)]
+    )
+    np.testing.assert_allclose(solve_direct(C, T, E), classical, rtol=1e-6)
+    state = solve_progressive(C, T, E, tolerance=1e-9)
+    np.testing.assert_allclose(state.radiosity, classical, rtol=1e-6)
+
+
+def lit_cube(overlap, beta):
+    s0 = scenes.cube(inward=True)
+    em = np.zeros((len(s0.triangles), 3))
+    em[2:4] = 3.0
+    s = Surfaces.from_arrays(s0.vertices, s0.triangles, reflectance=[0.7, 0.5, 0.3], emission=em)
+    return s, prepare(s, patch_count=200, overlap=overlap, beta=beta)
+
+
+def test_progressive_shooting_converges_to_the_direct_solution_of_equation_9():
+    s, (atlas, index, C, T, E) = lit_cube(1.6, "smooth")
+    direct = solve_direct(C, T, E)
+    # residual of (C - R) B = C E with R = diag(rho) G, computed here independently
+    R = T.rho[:, :1] * T.geometric.toarray()
+    assert np.abs((C.toarray() - R) @ direct[:, 0] - C.toarray() @ E[:, 0]).max() < 1e-9 * np.abs(E).max()
+    state = solve_progressive(C, T, E, tolerance=1e-6, batch=16)
+    assert state.converged
+    np.testing.assert_allclose(state.radiosity, direct, rtol=1e-4, atol=1e-6 * np.abs(direct).max())
+
+
+def test_paper_rule_reaches_its_own_fixed_point_not_equation_9():
+    s, (atlas, index, C, T, E) = lit_cube(2.0, "box")
+    paper = solve_progressive(C, T, E, tolerance=1e-9, rule="paper")
+    A = np.asarray(C.sum(axis=1)).ravel()
+    Cd = C.toarray()
+    P = Cd.T / A[:, None] / A[None, :]  # P = diag(1/A) C^T diag(1/A), built here densely
+    B = paper.radiosity
+    fixed = E + P @ (T.rho * (T.geometric @ B))
+    np.testing.assert_allclose(B, fixed, rtol=1e-6, atol=1e-9)
+    exact = solve_direct(C, T, E)
+    diff = np.linalg.norm(B - exact) / np.linalg.norm(exact)
+    assert diff > 1e-3, "with overlap the published rule differs from the solution of (9)"
+
+
+def test_a_cancelled_solve_can_be_continued_to_the_same_answer():
+    s, (atlas, index, C, T, E) = lit_cube(1.3, "smooth")
+    calls = []
+
+    def cancel_after_two(fraction, unshot, elapsed, rays):
+        calls.append((fraction, unshot))
+        return len(calls) < 2
+
+    partial = solve_progressive(C, T, E, tolerance=1e-6, batch=8, progress=cancel_after_two)
+    assert not partial.converged and len(calls) == 2
+    assert np.all(np.isfinite(partial.radiosity))
+    done = solve_progressive(C, T, E, tolerance=1e-6, batch=8, state=partial)
+    reference = solve_progressive(C, T, E, tolerance=1e-6, batch=8)
+    assert done.converged
+    np.testing.assert_allclose(done.radiosity, reference.radiosity, rtol=1e-4, atol=1e-9)
+
+
+def test_no_light_is_a_clear_error():
+    s = Surfaces.from_arrays(*scenes.plane(), reflectance=[0.5] * 3)
+    atlas, index, C, T, E = prepare(s, patch_count=20)
+    with pytest.raises(OvradError, match="no light"):
+        solve_progressive(C, T, E)
+
+
+def test_light_does_not_leak_through_a_thin_wall():
+    s0 = scenes.thin_wall_rooms(gap=0.01)
+    em = np.zeros((len(s0.triangles), 3))
+    em[2:4] = 10.0  # the left room's ceiling glows
+    s = Surfaces.from_arrays(s0.vertices, s0.triangles, s0.object_index, [0.7] * 3, em, s0.object_names)
+    atlas, index, C, T, E = prepare(s, patch_count=600, overlap=1.5)
+    B = solve_progressive(C, T, E, tolerance=1e-4).radiosity
+    # irradiance of each patch: received light over area, rho divided out
+    H = (T.geometric @ B) / atlas.support_area[:, None]
+    left = atlas.source_object == 0
+    assert H[left].mean() > 1.0
+    assert H[~left].mean() < 1e-3 * H[left].mean()
