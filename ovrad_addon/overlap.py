@@ -204,7 +204,7 @@ def neighbour_pairs(atlas) -> tuple[np.ndarray, np.ndarray]:
 
 
 def overlap_matrix(
-    atlas, index, q: int, progress: Callable[[float], None] | None = None, chunk_points: int = 8_000_000
+    atlas, index, q: int, progress: Callable[[float], None] | None = None, chunk_points: int = 2_000_000
 ) -> tuple[csr_matrix, np.ndarray]:
     """C (n x n sparse, C[h, i] = c_ih) and the support areas A_h (n,)."""
     n = len(atlas)
@@ -232,9 +232,18 @@ def overlap_matrix(
         sheets = np.where(quad.triangle >= 0, atlas.sheet[ids[quad.owner]], -1)
         member, b = pair_beta(atlas, pcol, quad.points[prow], quad.normals[prow], sheets[prow], atlas.beta)
         alpha = alpha_from_pairs(prow, pcol, member, b, (len(quad.owner), n)).tocoo()
-        rows.append(ids[quad.owner[alpha.row]])
-        cols.append(alpha.col)
-        vals.append(alpha.data * quad.weights[alpha.row])
+        # Sum per (h, i) within the chunk: what is kept is then the size of C, not of the rule.
+        part = (
+            coo_matrix(
+                (alpha.data * quad.weights[alpha.row], (quad.owner[alpha.row], alpha.col)),
+                shape=(len(ids), n),
+            )
+            .tocsr()
+            .tocoo()
+        )
+        rows.append(ids[part.row])
+        cols.append(part.col)
+        vals.append(part.data)
         if progress is not None:
             progress(min(1.0, (s0 + len(ids)) / n))
     C = coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)).tocsr()

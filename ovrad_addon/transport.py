@@ -106,9 +106,16 @@ def gather_transport(
         facing = np.einsum("ij,ij->i", dirs[hit], index.charts.normals[hit_tri[hit]])
         side = np.where(facing < 0, 1, -1)
         alpha = alpha_at(atlas, index, hp, hit_tri[hit], side).tocoo()
-        rows.append(ids[ray_owner[alpha.row]])
-        cols.append(alpha.col)
-        vals.append(alpha.data * ray_w[alpha.row])
+        part = (
+            coo_matrix(
+                (alpha.data * ray_w[alpha.row], (ray_owner[alpha.row], alpha.col)), shape=(len(ids), n)
+            )
+            .tocsr()
+            .tocoo()
+        )  # summed per (h, k) within the chunk: memory grows with G, not with rays
+        rows.append(ids[part.row])
+        cols.append(part.col)
+        vals.append(part.data)
         if progress is not None:
             progress((s0 + len(ids)) / n)
     G = coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)).tocsr()
