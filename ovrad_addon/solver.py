@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.sparse import csc_matrix, diags
-from scipy.sparse.linalg import LinearOperator, gmres, splu, spsolve
+from scipy.sparse.linalg import LinearOperator, gmres, splu
 
 from .errors import OvradError
 
@@ -67,20 +67,22 @@ def solve_progressive(
     progress: Progress = None,
     state: SolveState | None = None,
     max_shots: int = 1_000_000,
+    reference_power: float | None = None,
 ) -> SolveState:
     """Shoot the largest unshot power first, `batch` patches at a time, until unshot < tolerance.
 
-    C (n x n sparse), transport (R = diag(rho) G, see transport.py), emission E (n, 3) per
+    C (n x n sparse), transport (R, see transport.py), emission E (n, 3) per
     patch exitance.
     progress(fraction_done, unshot_fraction, elapsed, rays) returning False cancels: the state
     returned is then the last consistent one (every state is a valid radiosity).
+    reference_power: what unshot power is measured against (default: the emitted power).
     """
     if rule not in ("exact", "paper"):
         raise OvradError(f"solver rule must be 'exact' or 'paper', got {rule!r}")
     E = np.asarray(emission, np.float64).reshape(-1, 3)
     n = len(E)
     ckk = np.asarray(C.diagonal(), np.float64)
-    emitted = float(np.sum(ckk[:, None] * np.abs(E)))
+    emitted = float(np.sum(ckk[:, None] * np.abs(E))) if reference_power is None else reference_power
     if emitted <= 0:
         raise OvradError("no light: nothing in the scene emits (add an emissive material or a lamp)")
     if rule == "exact":
@@ -105,7 +107,7 @@ def solve_progressive(
         if rule == "exact" and (not np.isfinite(frac) or (frac > 10.0 * best and st.shots > n)):
             # Shooting order can amplify when C is badly conditioned (large smooth overlaps,
             # rho near 1). Krylov iterations on the same equation (9) finish the job.
-            st.radiosity = _krylov(lu, transport, E, st.radiosity, tolerance)
+            st.radiosity = _krylov(lu, transport, st.radiosity, st.unshot, tolerance)
             st.unshot = np.zeros_like(E)
             st.method = "shooting+gmres"
             continue
@@ -127,35 +129,41 @@ def solve_progressive(
     return st
 
 
-def _krylov(lu, transport, E, x0, tolerance):
-    """GMRES on C^-1 (C - R) B = E, channel by channel, from x0."""
-    n = len(E)
+def _krylov(lu, transport, radiosity, unshot, tolerance):
+    """Finish a solve with GMRES: the remaining X = (I - G)^-1 G U, G = C^-1 R, U the unshot.
+
+    Shooting keeps B_final = B + (I - G)^-1 G U invariant, so this is exact for any state.
+    """
+    n = len(unshot)
+    rhs = lu.solve(transport.apply(unshot))
     out = []
     for j in range(3):
-        rho = transport.rho[:, j]
 
-        def apply(x, rho=rho):
-            return x - lu.solve(rho * (transport.geometric @ x))
+        def apply(x, j=j):
+            full = np.zeros((n, 3))
+            full[:, j] = x
+            return x - lu.solve(transport.apply(full))[:, j]
 
         op = LinearOperator((n, n), matvec=apply, dtype=np.float64)
-        x, info = gmres(op, E[:, j], x0=x0[:, j], rtol=tolerance * 1e-2, restart=60, maxiter=500)
+        scale = max(float(np.abs(radiosity[:, j]).max()), 1e-300)
+        x, info = gmres(op, rhs[:, j], rtol=0.0, atol=tolerance * 1e-2 * scale, restart=60, maxiter=500)
         if info != 0:
             raise OvradError("the solve did not converge: reduce the overlap or use the box profile")
         out.append(x)
-    return np.column_stack(out)
+    return radiosity + np.column_stack(out)
 
 
 def solve_direct(C, transport, emission: np.ndarray) -> np.ndarray:
-    """Reference: (C - R) B = C E solved directly per channel (small scenes and tests)."""
+    """Reference: (C - R) B = C E solved directly with dense matrices (small scenes and tests)."""
     E = np.asarray(emission, np.float64).reshape(-1, 3)
-    Cc = csc_matrix(C)
-    d = np.abs(Cc.diagonal())
-    shift = diags(_REGULARISE * np.maximum(d, d.max() * 1e-12))
-    rhs = Cc @ E
+    Cd = csc_matrix(C).toarray()
+    Cd += np.diag(_REGULARISE * np.maximum(np.abs(np.diag(Cd)), np.abs(np.diag(Cd)).max() * 1e-12))
     out = []
     for j in range(3):
-        A = Cc - diags(transport.rho[:, j]) @ csc_matrix(transport.geometric) + shift
-        out.append(spsolve(A.tocsc(), rhs[:, j]))
+        R = (
+            transport.X.T @ diags(transport.w * transport.rho[:, j] / transport.n_rays) @ transport.Y
+        ).toarray()
+        out.append(np.linalg.solve(Cd - R, csc_matrix(C) @ E[:, j]))
     return np.column_stack(out)
 
 

@@ -1,0 +1,151 @@
+"""Blender lamps as light sources, in Cycles' units, and their direct light on receiver points.
+
+Every source is reduced to point samples with a radiant intensity I(omega) (W/sr); the
+irradiance at a receiver point M with normal n is sum_j I_j(omega_j) max(0, n . omega_j) / d_j^2,
+with a shadow ray per sample. Suns are directions with an irradiance instead.
+- Point lamp of power P: I = P / (4 pi) (Cycles divides by 4 pi), colour multiplies.
+- Spot lamp: a point lamp times smoothstep((cos t - cos(size/2)) / ((1 - cos(size/2)) blend)),
+  t the angle from the spot axis (the cone does not concentrate the power).
+- Sun of strength S (W/m^2): irradiance S cos(theta) where unshadowed.
+- Area lamp of power P and area A: radiance P / (pi A) from its front side; each of its k
+  samples carries I(omega) = P / (pi A) * (A / k) * cos(theta_lamp).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import OvradError
+
+LAMP_KINDS = ("POINT", "SPOT", "SUN", "AREA")
+AREA_SHAPES = ("SQUARE", "RECTANGLE", "DISK", "ELLIPSE")
+
+
+@dataclass(frozen=True)
+class Lamp:
+    """A Blender lamp in world space.
+
+    kind: POINT, SPOT, SUN or AREA; position (3,); direction (3,) unit vector the lamp points
+    along (-Z of the lamp object); tangent (3,) the lamp's local X (area lamp size_x axis);
+    power in W (point, spot, area) or strength in W/m^2 (sun); color (3,) linear RGB;
+    spot_size (radians, full cone angle) and spot_blend; shape, size_x, size_y for area lamps.
+    """
+
+    kind: str
+    position: tuple = (0.0, 0.0, 0.0)
+    direction: tuple = (0.0, 0.0, -1.0)
+    tangent: tuple = (1.0, 0.0, 0.0)
+    power: float = 1000.0
+    color: tuple = (1.0, 1.0, 1.0)
+    spot_size: float = np.pi / 4
+    spot_blend: float = 0.15
+    shape: str = "SQUARE"
+    size_x: float = 1.0
+    size_y: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.kind not in LAMP_KINDS:
+            raise OvradError(f"lamp kind must be one of {LAMP_KINDS}, got {self.kind!r}")
+        if self.kind == "AREA" and self.shape not in AREA_SHAPES:
+            raise OvradError(f"area lamp shape must be one of {AREA_SHAPES}, got {self.shape!r}")
+        vals = [*self.position, *self.direction, self.power, *self.color, self.size_x, self.size_y]
+        if not np.all(np.isfinite(vals)):
+            raise OvradError("lamp has NaN or infinite values")
+        if self.power < 0 or min(self.color) < 0:
+            raise OvradError("lamp power and colour must be non-negative")
+
+    def size_area(self) -> float:
+        """Emitting area of an area lamp."""
+        sy = self.size_x if self.shape in ("SQUARE", "DISK") else self.size_y
+        return self.size_x * sy * (np.pi / 4 if self.shape in ("DISK", "ELLIPSE") else 1.0)
+
+
+def spot_falloff(cos_angle: np.ndarray, spot_size: float, blend: float) -> np.ndarray:
+    """Cycles' spot attenuation: smoothstep over the blend region inside the cone edge."""
+    c = np.cos(0.5 * spot_size)
+    if blend <= 0:
+        return (cos_angle > c).astype(np.float64)
+    f = np.clip((cos_angle - c) / ((1.0 - c) * blend), 0.0, 1.0)
+    return f * f * (3.0 - 2.0 * f)
+
+
+def area_samples(lamp: Lamp, per_side: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """Stratified points on an area lamp's surface: (points (k, 3), area weights (k,))."""
+    d = np.asarray(lamp.direction, float)
+    d = d / np.linalg.norm(d)
+    t = np.asarray(lamp.tangent, float)
+    t = t - d * (t @ d)
+    t /= np.linalg.norm(t)
+    b = np.cross(d, t)
+    sx = lamp.size_x
+    sy = lamp.size_x if lamp.shape in ("SQUARE", "DISK") else lamp.size_y
+    g = (np.arange(per_side) + 0.5) / per_side - 0.5
+    if lamp.shape in ("SQUARE", "RECTANGLE"):
+        u, v = np.meshgrid(g * sx, g * sy, indexing="ij")
+        u, v = u.ravel(), v.ravel()
+        w = np.full(u.size, sx * sy / u.size)
+    else:  # disk or ellipse: equal-area rings
+        n_r = per_side
+        s = (np.arange(n_r) + 0.5) / n_r
+        r = np.sqrt(s)[:, None]
+        th = 2 * np.pi * (np.arange(2 * per_side) + 0.5 * (np.arange(n_r)[:, None] % 2)) / (2 * per_side)
+        u = (0.5 * sx * r * np.cos(th)).ravel()
+        v = (0.5 * sy * r * np.sin(th)).ravel()
+        w = np.full(u.size, np.pi * 0.25 * sx * sy / u.size)
+    p = np.asarray(lamp.position, float)
+    return p + u[:, None] * t + v[:, None] * b, w
+
+
+def lamp_irradiance(
+    lamps, points: np.ndarray, normals: np.ndarray, rays, extent: float
+) -> tuple[np.ndarray, int]:
+    """Direct irradiance (m, 3) in W/m^2 at points with unit normals, shadowed; and rays cast."""
+    pts = np.asarray(points, np.float64)
+    nrm = np.asarray(normals, np.float64)
+    total = np.zeros((len(pts), 3))
+    eps = 1e-6 * max(extent, 1e-300)
+    cast = 0
+    for lamp in lamps:
+        color = np.asarray(lamp.color, float)
+        axis = np.asarray(lamp.direction, float)
+        axis = axis / np.linalg.norm(axis)
+        if lamp.kind == "SUN":
+            to_light = np.broadcast_to(-axis, pts.shape)
+            cos = np.einsum("ij,ij->i", nrm, to_light)
+            lit = cos > 0
+            blocked = rays.occluded(pts[lit] + eps * nrm[lit], to_light[lit], np.inf)
+            cast += int(lit.sum())
+            e = np.zeros(len(pts))
+            e[np.flatnonzero(lit)[~blocked]] = lamp.power * cos[lit][~blocked]
+            total += e[:, None] * color
+            continue
+        if lamp.kind == "AREA":
+            src, w = area_samples(lamp)
+        else:
+            src, w = np.asarray(lamp.position, float)[None], np.ones(1)
+        for s, ws in zip(src, w, strict=True):
+            v = s - pts
+            d2 = np.einsum("ij,ij->i", v, v)
+            d = np.sqrt(np.maximum(d2, 1e-300))
+            omega = v / d[:, None]
+            cos = np.einsum("ij,ij->i", nrm, omega)
+            if lamp.kind == "AREA":
+                cos_l = np.einsum("ij,j->i", -omega, axis)
+                intensity = lamp.power / (np.pi * lamp.size_area()) * ws * np.clip(cos_l, 0, None)
+            else:
+                intensity = np.full(len(pts), lamp.power / (4 * np.pi))
+                if lamp.kind == "SPOT":
+                    intensity = intensity * spot_falloff(
+                        np.einsum("ij,j->i", -omega, axis), lamp.spot_size, lamp.spot_blend
+                    )
+            lit = (cos > 0) & (intensity > 0)
+            idx = np.flatnonzero(lit)
+            blocked = rays.occluded(pts[idx] + eps * nrm[idx], omega[idx], d[idx] * (1 - 1e-6) - eps)
+            cast += len(idx)
+            e = np.zeros(len(pts))
+            keep = idx[~blocked]
+            e[keep] = intensity[keep] * cos[keep] / d2[keep]
+            total += e[:, None] * color
+    return total, cast
