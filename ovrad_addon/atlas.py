@@ -89,6 +89,22 @@ class Atlas:
         }
 
     @staticmethod
+    def concatenate(atlases: list[Atlas]) -> Atlas:
+        """One atlas holding all patches of several (e.g. one per Blender atlas object); same beta."""
+        if not atlases:
+            raise OvradError("no atlas: generate an atlas first")
+        betas = {a.beta for a in atlases}
+        if len(betas) > 1:
+            raise OvradError(
+                "atlases were generated with different beta profiles: generate them again together"
+            )
+        kw = {}
+        for f in fields(Atlas):
+            vals = [getattr(a, f.name) for a in atlases]
+            kw[f.name] = np.concatenate(vals) if isinstance(vals[0], np.ndarray) else vals[0]
+        return Atlas(**kw)
+
+    @staticmethod
     def from_point_attributes(centers, attributes: dict, beta: str, source_object=None) -> Atlas:
         """Rebuild an atlas from point positions and the attributes point_attributes() wrote."""
         c = np.asarray(centers, np.float64).reshape(-1, 3)

@@ -21,7 +21,8 @@ from .solver import SolveState, _factor, solve_progressive
 from .surfaces import Surfaces
 from .transport import Transport, gather_transport
 
-GATHER_Q = 4  # receiver rule for transport and direct light: 16 angles x 2 rings x 2 points
+GATHER_Q = 4
+NEE_AREA_FRACTION = 0.1  # emitters covering less of the scene are shot with shadow rays
 
 
 @dataclass(frozen=True)
@@ -32,7 +33,7 @@ class SolveSettings:
 
     tolerance: float = 1e-3
     rule: str = "exact"
-    rays_per_point: int = 64
+    rays_per_point: int = 32
     batch: int = 64
     light_samples: int = 16
 
@@ -48,7 +49,7 @@ class SolveSettings:
 @dataclass
 class Problem:
     """Everything light-independent: index (sheets, rays), atlas with sheets attached (and its
-    effective areas from the fine rule), C and R on the shared samples (transport.py)."""
+    effective areas from the fine rule), C and the transport R (transport.py)."""
 
     surfaces: Surfaces
     atlas: Atlas
@@ -109,7 +110,7 @@ def prepare(
     progress: Progress = None,
     backend: str = "auto",
 ) -> Problem:
-    """Sheets, overlap matrix C and transport G for an atlas on these surfaces."""
+    """Sheets, the overlap matrix C (fine rule of `quadrature`) and the transport R for an atlas."""
     if len(atlas) == 0:
         raise OvradError("the atlas has no patches: generate an atlas first")
     seconds = {}
@@ -139,7 +140,7 @@ def prepare(
         progress=lambda f: _report(progress, 0.4 + 0.6 * f, "casting transport rays"),
     )
     seconds["transport"] = time.perf_counter() - t0
-    return Problem(surfaces, atlas, index, T.C, T, T.rays, seconds)
+    return Problem(surfaces, atlas, index, C, T, T.rays, seconds)
 
 
 def patch_emission(problem: Problem, emission_scale: float = 1.0) -> np.ndarray:
@@ -152,35 +153,42 @@ def patch_emission(problem: Problem, emission_scale: float = 1.0) -> np.ndarray:
 
 
 def _emitter_direct(problem: Problem, E: np.ndarray, samples: int, seed: int = 1) -> tuple[np.ndarray, int]:
-    """Irradiance (S, 3) at every sample straight from emissive patches, by sampling emitting
-    samples with shadow rays (next-event estimation), and the rays cast."""
-    atlas, index, smp = problem.atlas, problem.index, problem.transport.samples
-    S = len(smp.weight)
-    H = np.zeros((S, 3))
-    if not np.any(E > 0):
+    """Irradiance (m, 3) at every receiver point straight from emissive patches (next-event
+    estimation: `samples` stratified picks among the emitters' points, one shadow ray each),
+    and the rays cast. An emitter point of patch k carries its basis share alpha_k E_k / pi."""
+    atlas, index, rp = problem.atlas, problem.index, problem.transport.points
+    m = len(rp.owner)
+    H = np.zeros((m, 3))
+    src_patch = np.flatnonzero(np.abs(E).sum(axis=1) > 0)
+    if len(src_patch) == 0:
         return H, 0
-    # Emission field at each sample, E(s) / pi = sum_k alpha_k(s) E_k / pi, from the basis.
-    a = alpha_at(atlas, index, smp.points, smp.triangle, smp.side)
-    radiance = (a @ E) / np.pi
-    power = smp.weight * radiance.sum(axis=1)
-    src = np.flatnonzero(power > 0)
-    cdf = np.cumsum(power[src]) / power[src].sum()
+    sel = np.flatnonzero(np.isin(rp.owner, src_patch))
+    a = alpha_at(atlas, index, rp.points[sel], rp.triangle[sel], index.sheet_side[atlas.sheet[rp.owner[sel]]])
+    own = np.asarray(a[np.arange(len(sel)), rp.owner[sel]]).ravel()
+    radiance = own[:, None] * E[rp.owner[sel]] / np.pi
+    power = rp.weight[sel] * radiance.sum(axis=1)
+    keep = power > 0
+    sel, radiance, power = sel[keep], radiance[keep], power[keep]
+    if len(sel) == 0:
+        return H, 0
+    total = power.sum()
+    cdf = np.cumsum(power) / total
     rng = np.random.default_rng(seed)
     eps = 1e-6 * problem.surfaces.extent
     cast = 0
     step = max(1, (1 << 20) // samples)
-    for r0 in range(0, S, step):
-        rs = np.arange(r0, min(S, r0 + step))
-        pts, nrm = smp.points[rs], smp.normals[rs]
+    for r0 in range(0, m, step):
+        rs = np.arange(r0, min(m, r0 + step))
+        pts, nrm = rp.points[rs], rp.normals[rs]
         u = (np.arange(samples)[None, :] + rng.random((len(rs), 1))) / samples  # stratified
-        j = src[np.minimum(np.searchsorted(cdf, u), len(src) - 1)]  # (m, S)
-        pdf = power[j] / power[src].sum()
-        v = smp.points[j] - pts[:, None]
-        d2 = np.einsum("msk,msk->ms", v, v)
+        j = np.minimum(np.searchsorted(cdf, u), len(sel) - 1)  # (r, S) into sel
+        src = sel[j]
+        v = rp.points[src] - pts[:, None]
+        d2 = np.einsum("rsk,rsk->rs", v, v)
         d = np.sqrt(np.maximum(d2, 1e-300))
         omega = v / d[..., None]
-        cos_r = np.einsum("msk,mk->ms", omega, nrm)
-        cos_s = -np.einsum("msk,msk->ms", omega, smp.normals[j])
+        cos_r = np.einsum("rsk,rk->rs", omega, nrm)
+        cos_s = -np.einsum("rsk,rsk->rs", omega, rp.normals[src])
         r_i, s_i = np.nonzero((cos_r > 0) & (cos_s > 0))
         blocked = index.rays.occluded(
             pts[r_i] + eps * nrm[r_i], omega[r_i, s_i], d[r_i, s_i] * (1 - 1e-6) - 2 * eps
@@ -188,7 +196,8 @@ def _emitter_direct(problem: Problem, E: np.ndarray, samples: int, seed: int = 1
         cast += len(r_i)
         r_i, s_i = r_i[~blocked], s_i[~blocked]
         jj = j[r_i, s_i]
-        g = smp.weight[jj] * cos_r[r_i, s_i] * cos_s[r_i, s_i] / d2[r_i, s_i] / (pdf[r_i, s_i] * samples)
+        pdf = power[jj] / total
+        g = rp.weight[sel[jj]] * cos_r[r_i, s_i] * cos_s[r_i, s_i] / d2[r_i, s_i] / (pdf * samples)
         np.add.at(H, rs[r_i], g[:, None] * radiance[jj])
     return H, cast
 
@@ -211,12 +220,17 @@ def solve(
     E = patch_emission(problem, emission_scale)
     if state is None:
         T = problem.transport
-        smp = T.samples
+        rp = T.points
         H, lamp_rays = lamp_irradiance(
-            lamps, smp.points, smp.normals, problem.index.rays, problem.surfaces.extent
+            lamps, rp.points, rp.normals, problem.index.rays, problem.surfaces.extent
         )
-        direct, emit_rays = _emitter_direct(problem, E, settings.light_samples)
-        received = T.test((H + direct) * T.rho)
+        # Small bright emitters (a light fixture) are shot with shadow rays: hemisphere rays would
+        # find them too rarely. Large emitters (a glowing wall, a furnace) are left to the rays,
+        # whose sums close exactly, where sampling them point to point would meet 1/d^2 near fields.
+        emitting = np.abs(E).sum(axis=1) > 0
+        small = atlas.effective_area[emitting].sum() <= NEE_AREA_FRACTION * atlas.effective_area.sum()
+        direct, emit_rays = _emitter_direct(problem, E, settings.light_samples) if small else (0.0, 0)
+        received = T.test(H + direct, problem.surfaces.reflectance[rp.triangle])
         if not np.any(received > 0) and not np.any(E > 0):
             raise OvradError("no light: nothing in the scene emits (add a lamp or an emissive material)")
         if settings.rule == "exact":
@@ -224,8 +238,9 @@ def solve(
         else:
             A = atlas.support_area
             dB = (problem.C.T @ (received / A[:, None])) / A[:, None]
-        state = SolveState(radiosity=E + dB, unshot=dB, rays=problem.rays + lamp_rays + emit_rays)
-        if not np.any(np.abs(dB) > 0):
+        unshot = dB if small else dB + E
+        state = SolveState(radiosity=E + dB, unshot=unshot, rays=problem.rays + lamp_rays + emit_rays)
+        if not np.any(np.abs(state.unshot) > 0):
             state.converged = True
             return state
     return solve_progressive(
@@ -247,3 +262,15 @@ def radiance_at(problem: Problem, radiosity: np.ndarray, points, triangles, side
     tri = np.asarray(triangles, np.int64)
     a = alpha_at(problem.atlas, problem.index, points, tri, np.broadcast_to(np.asarray(sides), tri.shape))
     return reconstruct(a, radiosity) / np.pi
+
+
+def irradiance_at(problem: Problem, radiosity: np.ndarray, points, triangles, sides=1) -> np.ndarray:
+    """Light arriving at surface points without the surface's albedo: H / pi (m, 3), in the units
+    of radiance (a white surface's radiance), from B(M) - E(M) = rho(M) H(M); 0 where rho is 0."""
+    tri = np.asarray(triangles, np.int64)
+    a = alpha_at(problem.atlas, problem.index, points, tri, np.broadcast_to(np.asarray(sides), tri.shape))
+    E = patch_emission(problem)
+    reflected = reconstruct(a, radiosity - E)
+    rho = problem.surfaces.reflectance[tri]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(rho > 0, reflected / rho, 0.0) / np.pi

@@ -67,8 +67,9 @@ class NumpyRays:
 class EmbreeRays:
     """embreex scene over the triangles, queried in large batches from two threads.
 
-    Coordinates are shifted to the scene's centre before the float32 conversion so that
-    precision does not depend on where the scene sits in the world.
+    Coordinates are shifted to the scene's centre and divided by its size before the float32
+    conversion, so that precision does not depend on where the scene sits or on its scale: a
+    scene scaled by 1e-3 or 1e3 gives the same float32 geometry, hence the same hits.
     """
 
     name = "embree"
@@ -76,18 +77,21 @@ class EmbreeRays:
     def __init__(self, vertices: np.ndarray, triangles: np.ndarray) -> None:
         v = np.asarray(vertices, np.float64)
         self._shift = 0.5 * (v.min(axis=0) + v.max(axis=0)) if len(v) else np.zeros(3)
+        size = float(np.max(v.max(axis=0) - v.min(axis=0))) if len(v) else 1.0
+        self._scale = size if size > 0 else 1.0
         self._scene = _emb_scene.EmbreeScene()
         self._mesh = _emb_mesh.TriangleMesh(
             self._scene,
-            np.ascontiguousarray(v - self._shift, np.float32),
+            np.ascontiguousarray((v - self._shift) / self._scale, np.float32),
             np.ascontiguousarray(triangles, np.int32),
         )
         self._pool = ThreadPoolExecutor(max_workers=2)
 
     def _run(self, origins, directions, tmax, query: str):
-        o = np.ascontiguousarray(np.asarray(origins, np.float64) - self._shift, np.float32)
+        o = np.ascontiguousarray((np.asarray(origins, np.float64) - self._shift) / self._scale, np.float32)
         d = np.ascontiguousarray(directions, np.float32)
-        tm = np.ascontiguousarray(np.broadcast_to(np.asarray(tmax, np.float64), (len(o),)), np.float32)
+        tm = np.broadcast_to(np.asarray(tmax, np.float64) / self._scale, (len(o),))
+        tm = np.ascontiguousarray(np.minimum(tm, 3.0e38), np.float32)
         chunks = [slice(s, s + _BATCH) for s in range(0, len(o), _BATCH)]
 
         def one(sl):
@@ -102,7 +106,7 @@ class EmbreeRays:
             return np.zeros(0), np.zeros(0, np.int64)
         parts = self._run(origins, directions, tmax, "INTERSECT")
         prim = np.concatenate([p["primID"] for p in parts]).astype(np.int64)
-        t = np.concatenate([p["tfar"] for p in parts]).astype(np.float64)
+        t = np.concatenate([p["tfar"] for p in parts]).astype(np.float64) * self._scale
         t[prim < 0] = np.inf
         return t, prim
 

@@ -160,9 +160,7 @@ def solve_direct(C, transport, emission: np.ndarray) -> np.ndarray:
     Cd += np.diag(_REGULARISE * np.maximum(np.abs(np.diag(Cd)), np.abs(np.diag(Cd)).max() * 1e-12))
     out = []
     for j in range(3):
-        R = (
-            transport.X.T @ diags(transport.w * transport.rho[:, j] / transport.n_rays) @ transport.Y
-        ).toarray()
+        R = transport.rho[:, [j]] * transport.geometric.toarray()
         out.append(np.linalg.solve(Cd - R, csc_matrix(C) @ E[:, j]))
     return np.column_stack(out)
 

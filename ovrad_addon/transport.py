@@ -1,17 +1,14 @@
-"""Light transport in test space, estimated on one shared set of surface samples.
+"""Light transport between patches: R^c[h, k] = rho^c_h G[h, k], with G[h, k] the integral over
+D_h of the form factor from M to alpha_k, estimated by hemisphere rays from each patch's own
+quadrature points.
 
-Every receiving sheet is covered by stratified samples s (area weight w_s). From each sample,
-cosine-distributed rays find what it sees; with Y[s, k] the sum over its rays of alpha_k at the
-hit points and X[s, h] = 1 where s lies in D_h:
-
-    R^c[h, k] = sum_s X[s, h] w_s rho^c_s Y[s, k] / n_rays      (R of method.md, per channel)
-    C[h, i]   = sum_s X[s, h] w_s alpha_i(s)                     (the overlap matrix, same samples)
-
-Using the same samples for C and R matters: the noise of ray estimates is then one field shared
-by all test regions, so C^-1 does not amplify it into checkerboards between overlapping
-patches. Because the alpha at every hit sum to 1, sum_k R[h, k] = rho A_h exactly wherever all
-rays hit covered surface (energy is conserved by construction: the furnace test). Directions are
-stratified and seeded, so a solve is deterministic.
+With cosine-distributed directions, the form factor from M to a region is the fraction of M's
+rays that land in it, so (1/n) sum_j alpha_k(N_j) estimates the integral of alpha_k(N) F(M, N)
+over D_k with visibility included. The alpha at every hit sum to 1, so the rows close exactly,
+sum_k G[h, k] = A_h wherever every ray hits covered surface: energy is conserved by
+construction (the furnace test). Directions are stratified and seeded: a solve is repeatable.
+Direct light (lamps, emitters) is not left to these rays: pipeline.py shoots it with shadow
+rays to the same quadrature points, whose test integrals are accurate to the rule.
 """
 
 from __future__ import annotations
@@ -20,88 +17,58 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import coo_matrix, csc_matrix, csr_matrix, diags
+from scipy.sparse import coo_matrix, csc_matrix
 
-from .overlap import alpha_at
+from .overlap import alpha_at, patch_quadrature
 
 
 @dataclass(frozen=True)
-class Samples:
-    """Stratified points on every sheet that has patches: (S, 3) points and normals (on the
-    sheet's side), triangle (S,), side (S,) +-1, weight (S,) area."""
+class ReceiverPoints:
+    """Quadrature points of every patch's support (a coarse polar rule): owner (m,) patch,
+    points (m, 3), normals (m, 3) on the patch's side, weight (m,) area (summing per patch to
+    its support area A_h), triangle (m,)."""
 
+    owner: np.ndarray
     points: np.ndarray
     normals: np.ndarray
-    triangle: np.ndarray
-    side: np.ndarray
     weight: np.ndarray
+    triangle: np.ndarray
 
 
-def surface_samples(atlas, index, per_radius: float = 3.0, seed: int = 0) -> Samples:
-    """About per_radius^2 samples per r^2 (r the sheet's patch radius), stratified per triangle."""
-    rng = np.random.default_rng(seed)
-    ch = index.charts
-    corners = index.surfaces.corners
-    out = []
-    for sheet, (c, side) in enumerate(zip(index.sheet_chart, index.sheet_side, strict=True)):
-        on = atlas.sheet == sheet
-        if not on.any():
-            continue
-        delta = float(np.median(atlas.radii[on])) / per_radius
-        tri = np.flatnonzero(ch.chart == c)
-        k = np.maximum(np.round(ch.areas[tri] / delta**2), 1).astype(np.int64)
-        t = np.repeat(tri, k)
-        # jittered strata of the unit square, warped onto the triangle (area-preserving)
-        start = np.repeat(np.cumsum(k) - k, k)
-        j = np.arange(len(t)) - start
-        g = np.ceil(np.sqrt(k)).astype(np.int64)[np.repeat(np.arange(len(tri)), k)]
-        a = (j % g + rng.random(len(t))) / g
-        b = ((j // g) % g + rng.random(len(t))) / g
-        sa = np.sqrt(a)
-        u, v = 1.0 - sa, b * sa
-        cc = corners[t]
-        p = cc[:, 0] + u[:, None] * (cc[:, 1] - cc[:, 0]) + v[:, None] * (cc[:, 2] - cc[:, 0])
-        out.append(
-            (
-                p,
-                side * ch.normals[t],
-                t,
-                np.full(len(t), side),
-                (ch.areas[tri] / k)[np.repeat(np.arange(len(tri)), k)],
-            )
-        )
-    cols = list(zip(*out, strict=True))
-    return Samples(*(np.concatenate(c) for c in cols))
+def receiver_points(atlas, index, q: int = 4) -> ReceiverPoints:
+    """Coarse rule points on every support, weights rescaled to the support areas A_h of C."""
+    quad = patch_quadrature(atlas, index, np.arange(len(atlas)), q, rings=max(q // 2, 1))
+    on = quad.weights > 0
+    owner, w = quad.owner[on], quad.weights[on]
+    coarse = np.bincount(owner, weights=w, minlength=len(atlas))
+    w = w * (atlas.support_area / np.maximum(coarse, 1e-300))[owner]
+    return ReceiverPoints(owner, quad.points[on], quad.normals[on], w, quad.triangle[on])
 
 
 @dataclass(frozen=True)
 class Transport:
-    """R and C on shared samples (see module docstring).
+    """R = diag(rho_c) G per colour channel; G (n x n, csc for column access), rho (n, 3) the
+    reflectance of each patch (averaged over its support), the receiver points, rays cast."""
 
-    X (S x n csr) membership of samples in patches, Y (S x n csc) summed alpha at ray hits,
-    w (S,) sample areas, rho (S, 3) reflectance at samples, n_rays per sample, C (n x n csr)."""
-
-    X: csr_matrix
-    Y: csc_matrix
-    w: np.ndarray
+    geometric: csc_matrix
     rho: np.ndarray
-    n_rays: int
-    C: csr_matrix
-    samples: Samples
+    points: ReceiverPoints
     rays: int
 
     def received(self, cols: np.ndarray, unshot: np.ndarray) -> np.ndarray:
         """EC (n, 3): light landing in every test region when patches `cols` shoot unshot (len, 3)."""
-        at_samples = self.Y[:, cols] @ unshot
-        return self.X.T @ (at_samples * (self.w[:, None] * self.rho / self.n_rays))
+        return self.rho * (self.geometric[:, cols] @ unshot)
 
     def apply(self, B: np.ndarray) -> np.ndarray:
-        """R B (n, 3) for radiosity B (n, 3)."""
-        return self.X.T @ ((self.Y @ B) * (self.w[:, None] * self.rho / self.n_rays))
+        """R B (n, 3)."""
+        return self.rho * (self.geometric @ B)
 
-    def test(self, field_at_samples: np.ndarray) -> np.ndarray:
-        """Integral over each D_h of a field given at the samples: X^T (w f), (n, c)."""
-        return self.X.T @ (field_at_samples * self.w[:, None])
+    def test(self, irradiance: np.ndarray, reflectance: np.ndarray) -> np.ndarray:
+        """Light reflected into each test region from an irradiance (m, 3) at the receiver points."""
+        p = self.points
+        out = np.zeros((len(self.rho), irradiance.shape[1]))
+        np.add.at(out, p.owner, reflectance * irradiance * p.weight[:, None])
+        return out
 
 
 def cosine_directions(normals: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
@@ -122,67 +89,43 @@ def cosine_directions(normals: np.ndarray, count: int, rng: np.random.Generator)
     return x[..., None] * t[:, None] + y[..., None] * b[:, None] + z[..., None] * normals[:, None]
 
 
-def _membership_and_alpha(atlas, index, s: Samples, sl: slice) -> tuple[csr_matrix, csr_matrix]:
-    from .overlap import candidate_patches
-    from .support import alpha_from_pairs, pair_beta
-
-    pts = s.points[sl]
-    sheets = index.sheet_of(s.triangle[sl], s.side[sl])
-    rows, cols = candidate_patches(atlas, pts)
-    member, b = pair_beta(atlas, cols, pts[rows], s.normals[sl][rows], sheets[rows], atlas.beta)
-    X = coo_matrix(
-        (np.ones(member.sum()), (rows[member], cols[member])), shape=(len(pts), len(atlas))
-    ).tocsr()
-    return X, alpha_from_pairs(rows, cols, member, b, (len(pts), len(atlas)))
-
-
 def gather_transport(
     atlas,
     index,
-    rays_per_point: int = 64,
+    rays_per_point: int = 32,
+    q: int = 4,
     progress: Callable[[float], None] | None = None,
     chunk_rays: int = 1 << 20,
     seed: int = 0,
-    per_radius: float = 3.0,
 ) -> Transport:
-    """Samples, their membership and alpha (C), and their hemisphere rays (R)."""
+    """Build G and rho by hemisphere gathering from every patch's receiver points."""
     n = len(atlas)
-    s = surface_samples(atlas, index, per_radius, seed)
-    rng = np.random.default_rng(seed + 1)
+    pts = receiver_points(atlas, index, q)
     offset = 1e-6 * index.surfaces.extent
-    S = len(s.weight)
-    per_chunk = max(1, chunk_rays // rays_per_point)
-    Xs, As, Ys = [], [], []
-    for s0 in range(0, S, per_chunk):
-        sl = slice(s0, min(S, s0 + per_chunk))
-        X, A = _membership_and_alpha(atlas, index, s, sl)
-        Xs.append(X)
-        As.append(A)
-        nrm = s.normals[sl]
+    rng = np.random.default_rng(seed)
+    m = len(pts.owner)
+    rows, cols, vals = [], [], []
+    step = max(1, chunk_rays // rays_per_point)
+    for s0 in range(0, m, step):
+        sl = slice(s0, min(m, s0 + step))
+        nrm = pts.normals[sl]
         dirs = cosine_directions(nrm, rays_per_point, rng).reshape(-1, 3)
-        origins = np.repeat(s.points[sl] + offset * nrm, rays_per_point, axis=0)
+        origins = np.repeat(pts.points[sl] + offset * nrm, rays_per_point, axis=0)
         t, hit_tri = index.rays.closest_hit(origins, dirs, np.inf)
         hit = hit_tri >= 0
         hp = origins[hit] + t[hit, None] * dirs[hit]
         facing = np.einsum("ij,ij->i", dirs[hit], index.charts.normals[hit_tri[hit]])
         a = alpha_at(atlas, index, hp, hit_tri[hit], np.where(facing < 0, 1, -1)).tocoo()
-        owner = np.repeat(np.arange(sl.stop - sl.start), rays_per_point)[hit]
-        Ys.append(coo_matrix((a.data, (owner[a.row], a.col)), shape=(sl.stop - sl.start, n)).tocsr())
+        owner = np.repeat(pts.owner[sl], rays_per_point)[hit]
+        ray_w = np.repeat(pts.weight[sl] / rays_per_point, rays_per_point)[hit]
+        part = coo_matrix((a.data * ray_w[a.row], (owner[a.row], a.col)), shape=(n, n)).tocsr().tocoo()
+        rows.append(part.row)  # summed per (h, k) within the chunk: memory follows G, not rays
+        cols.append(part.col)
+        vals.append(part.data)
         if progress is not None:
-            progress(sl.stop / S)
-    from scipy.sparse import vstack
-
-    X = vstack(Xs).tocsr()
-    A = vstack(As).tocsr()
-    Y = vstack(Ys).tocsc()
-    C = (X.T @ diags(s.weight) @ A).tocsr()
-    return Transport(
-        X=X,
-        Y=Y,
-        w=s.weight,
-        rho=index.surfaces.reflectance[s.triangle],
-        n_rays=rays_per_point,
-        C=C,
-        samples=s,
-        rays=S * rays_per_point,
-    )
+            progress(sl.stop / m)
+    G = coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)).tocsc()
+    rho = np.zeros((n, 3))
+    np.add.at(rho, pts.owner, index.surfaces.reflectance[pts.triangle] * pts.weight[:, None])
+    rho /= np.maximum(np.bincount(pts.owner, weights=pts.weight, minlength=n), 1e-300)[:, None]
+    return Transport(geometric=G, rho=rho, points=pts, rays=m * rays_per_point)
