@@ -261,12 +261,12 @@ def candidate_patches(atlas, points: np.ndarray) -> tuple[np.ndarray, np.ndarray
     tree = atlas.tree
     reach = float(atlas.bounding_radii.max()) * (1 + 1e-9)
     k = int(min(len(atlas), max(int(atlas.overlap_count.max(initial=0)) + 2, 8)))
-    _, idx = tree.query(points, k=k, distance_upper_bound=reach)
+    _, idx = tree.query(points, k=k, distance_upper_bound=reach, workers=-1)
     idx = idx.reshape(len(points), k)
     full = idx[:, -1] < len(atlas)
     if k < len(atlas) and full.any():
         extra = np.flatnonzero(full)
-        lists = tree.query_ball_point(points[extra], reach)
+        lists = tree.query_ball_point(points[extra], reach, workers=-1)
         lens = np.fromiter((len(x) for x in lists), np.int64, len(extra))
         more_c = np.concatenate([np.asarray(x, np.int64) for x in lists])
         more_r = np.repeat(extra, lens)

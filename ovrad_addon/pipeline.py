@@ -21,7 +21,7 @@ from .solver import SolveState, _factor, solve_progressive
 from .surfaces import Surfaces
 from .transport import Transport, gather_transport
 
-GATHER_Q = 4
+GATHER_Q = 4  # polar rule of the receiver points (transport, direct light, patch emission)
 NEE_AREA_FRACTION = 0.1  # emitters covering less of the scene are shot with shadow rays
 
 

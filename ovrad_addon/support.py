@@ -52,15 +52,18 @@ def pair_beta(patches, idx, points, normals, sheets, beta: str) -> tuple[np.ndar
     member = np.zeros(len(idx), bool)
     b = np.zeros(len(idx))
     # Cheap rejections first (sheet, then distance to the centre), full test on what is left.
-    near = sheets == patches.sheet[idx]
-    cand = np.flatnonzero(near)
-    rel = points[cand] - patches.centers[idx[cand]]
-    br = patches.bounding_radii[idx[cand]]
-    cand = cand[np.einsum("ij,ij->i", rel, rel) <= br * br * (1 + 1e-12)]
+    cand = np.flatnonzero(sheets == patches.sheet[idx])
     i = idx[cand]
-    x, y, h = local_coords(patches, i, points[cand])
+    rel = points[cand] - patches.centers[i]
+    br = patches.bounding_radii[i]
+    near = np.einsum("ij,ij->i", rel, rel) <= br * br * (1 + 1e-12)
+    cand, i, rel = cand[near], i[near], rel[near]
+    x = np.einsum("ij,ij->i", rel, patches.tangents[i])
+    y = np.einsum("ij,ij->i", rel, patches.bitangents[i])
+    n_i = patches.normals[i]
+    h = np.einsum("ij,ij->i", rel, n_i)
     inside, bb = beta_of(patches, i, x, y, beta)
-    cos = np.einsum("ij,ij->i", normals[cand], patches.normals[i])
+    cos = np.einsum("ij,ij->i", normals[cand], n_i)
     ok = inside & (cos >= patches.min_cos[i]) & (np.abs(h) <= patches.thickness[i])
     member[cand] = ok
     b[cand] = np.where(ok, bb, 0.0)
