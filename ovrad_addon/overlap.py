@@ -42,7 +42,7 @@ def polar_rule(atlas, ids: np.ndarray, nb: np.ndarray, q: int, planar: np.ndarra
     Along each of 4q rays from the centre, the radius is split at every crossing of a
     neighbour's rim (nb (k, M) neighbour indices, -1 padding; used on planar sheets, where
     rims are exact circles and squares in the plane) and at `rings` equal-area rings. alpha is then
-    smooth inside each piece, so two Gauss points per piece integrate it (and a box-beta
+    smooth inside each piece, so two Gauss points per piece (in rho^2) integrate it (and a box-beta
     alpha, constant on each piece, exactly); the angular rule is the only approximation left.
     cand (m, M) marks the neighbours that may contain each rule point: on planar sheets the
     rim crossings already tell, elsewhere every neighbour is a candidate.
@@ -112,8 +112,11 @@ def polar_rule(atlas, ids: np.ndarray, nb: np.ndarray, q: int, planar: np.ndarra
     lo, hi = lo[keep], hi[keep]
     # alpha is constant on each piece with box beta: one point per piece is exact there
     gx, gw = _gauss(1 if atlas.beta == "box" else 2)
-    rho = lo[:, None] + (hi - lo)[:, None] * gx[None]
-    w = dtheta[kk, tt][:, None] * (hi - lo)[:, None] * gw[None] * rho
+    # Gauss points in s = rho^2 (the area coordinate along the ray): integrands polynomial in
+    # rho^2, like a smooth field's radial variation, are integrated exactly on each piece.
+    s_lo, s_hi = lo * lo, hi * hi
+    rho = np.sqrt(s_lo[:, None] + (s_hi - s_lo)[:, None] * gx[None])
+    w = dtheta[kk, tt][:, None] * 0.5 * (s_hi - s_lo)[:, None] * gw[None]
     owner = np.repeat(kk, len(gx))
     th = np.repeat(theta[kk, tt], len(gx))
     if spans is None:

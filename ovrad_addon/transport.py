@@ -74,10 +74,13 @@ class Transport:
 def cosine_directions(normals: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
     """(m, count, 3) cosine-distributed unit directions around each normal, stratified per point."""
     m = len(normals)
-    side = int(np.ceil(np.sqrt(count)))
-    cells = np.arange(side * side)[:count]
-    u1 = (cells % side + rng.random((m, count))) / side
-    u2 = (cells // side + rng.random((m, count))) / side
+    # a full na x nb grid of strata (na nb = count exactly): a partial grid would weight some
+    # strata twice and bias the directions (towards the normal, say)
+    na = max(d for d in range(1, int(np.sqrt(count)) + 1) if count % d == 0)
+    nb = count // na
+    cells = np.arange(count)
+    u1 = (cells % na + rng.random((m, count))) / na
+    u2 = (cells // na + rng.random((m, count))) / nb
     r = np.sqrt(u1)
     phi = 2.0 * np.pi * u2
     x, y = r * np.cos(phi), r * np.sin(phi)
