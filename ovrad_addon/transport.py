@@ -37,7 +37,7 @@ class ReceiverPoints:
 
 def receiver_points(atlas, index, q: int = 4) -> ReceiverPoints:
     """Coarse rule points on every support, weights rescaled to the support areas A_h of C."""
-    quad = patch_quadrature(atlas, index, np.arange(len(atlas)), q, rings=max(q // 2, 1))
+    quad = patch_quadrature(atlas, index, np.arange(len(atlas)), q, rings=1)
     on = quad.weights > 0
     owner, w = quad.owner[on], quad.weights[on]
     coarse = np.bincount(owner, weights=w, minlength=len(atlas))
