@@ -14,6 +14,7 @@ from scipy.sparse import csr_matrix
 
 SHAPE_DISK = 0
 SHAPE_SQUARE = 1
+RIM_TOLERANCE = 1e-5  # relative to the patch radius
 
 
 def local_coords(patches, idx: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -37,7 +38,11 @@ def beta_of(
     square = patches.shapes[idx] == SHAPE_SQUARE
     u, v = x / r, y / r
     d2 = u * u + v * v
-    inside = np.where(square, np.maximum(np.abs(u), np.abs(v)) <= 1.0, d2 <= 1.0)
+    # A hair of tolerance: points exactly on a patch's rim (mesh vertices on a chart border,
+    # stored in float32 by Blender) must still count as covered.
+    inside = np.where(
+        square, np.maximum(np.abs(u), np.abs(v)) <= 1.0 + RIM_TOLERANCE, d2 <= (1.0 + RIM_TOLERANCE) ** 2
+    )
     if beta == "box":
         b = inside.astype(np.float64)
     else:
