@@ -180,6 +180,7 @@ def patch_quadrature(
     # On planar sheets the rule point already lies on the surface: keep it exact.
     pts = np.where(on_plane[:, None], plane, origins - hit_t[:, None] * n)
     jac = np.where(on_plane, 1.0, 1.0 / np.maximum(np.abs(cos), 1e-12))
+    ok[ok] = ~_buried(index, pts[ok], tri_n[ok], 1e-4 * atlas.radii[g[ok]])
     return Quadrature(
         owner=owner,
         points=pts,
@@ -188,6 +189,23 @@ def patch_quadrature(
         triangle=np.where(ok, tri, -1),
         cand=cand,
     )
+
+
+def _buried(index, points: np.ndarray, normals: np.ndarray, lift: np.ndarray) -> np.ndarray:
+    """Surface points inside a closed object (a box's footprint on the floor it stands on).
+
+    A ray along the normal that first meets the inside of a watertight mesh started inside it;
+    light never reaches such points, so they are no part of any patch's support (else they
+    would pull the light of the visible part of the patch down).
+    """
+    if len(points) == 0:
+        return np.zeros(0, bool)
+    origins = points + (lift + 1e-7 * index.surfaces.extent)[:, None] * normals
+    _, tri = index.rays.closest_hit(origins, normals, np.inf)
+    hit = tri >= 0
+    chart = index.charts.chart[np.maximum(tri, 0)]
+    back = np.einsum("ij,ij->i", index.charts.normals[np.maximum(tri, 0)], normals) > 0
+    return hit & back & (chart >= 0) & index.charts.closed[np.maximum(chart, 0)]
 
 
 def neighbour_pairs(atlas) -> tuple[np.ndarray, np.ndarray]:
