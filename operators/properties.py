@@ -1,12 +1,17 @@
-"""ovrad's Blender properties (scene settings, per-object overrides) and their conversion to AtlasSettings."""
+"""ovrad's Blender properties (scene settings, per-object overrides) and their conversion to the engine's
+frozen settings (AtlasSettings, SolveSettings)."""
 
 from __future__ import annotations
 
 import bpy
-from bpy.props import EnumProperty, FloatProperty, IntProperty
+from bpy.props import EnumProperty, FloatProperty, IntProperty, StringProperty
 
+from ..ovrad_addon.pipeline import SolveSettings
 from ..ovrad_addon.settings import AtlasSettings, ObjectSettings
 from . import attributes, display
+
+# The panel's defaults are the engine's.
+_ENGINE = SolveSettings()
 
 
 def _update_display(self, context) -> None:
@@ -88,6 +93,98 @@ class OVRAD_PG_settings(bpy.types.PropertyGroup):
         default="OVERLAP",
         update=_update_display,
     )
+    solve_tolerance: FloatProperty(
+        name="Tolerance",
+        description="Stop when the light not yet shot is below this fraction of the light emitted",
+        default=_ENGINE.tolerance,
+        min=1e-6,
+        max=0.5,
+        precision=4,
+        step=0.01,
+    )
+    solve_rule: EnumProperty(
+        name="Solver",
+        description="How shot light is turned back into patch radiosities",
+        items=(
+            (
+                "exact",
+                "Exact",
+                "Solve the overlap system exactly: the fixed point is the paper's equation (9)",
+            ),
+            ("paper", "Paper", "The paper's published distribution rule (for comparison)"),
+        ),
+        default="exact",
+    )
+    rays_per_point: IntProperty(
+        name="Rays per Point",
+        description="Hemisphere rays cast from each surface sample for the form factors (more: less noise)",
+        default=_ENGINE.rays_per_point,
+        min=1,
+        max=4096,
+        soft_max=1024,
+    )
+    bake_target: EnumProperty(
+        name="Bake To",
+        description="Where the solved light is baked",
+        items=(
+            ("VERTEX", "Vertex Colors", "A colour attribute on the receiving meshes"),
+            ("IMAGE", "Image Texture", "An image texture over a UV map"),
+        ),
+        default="VERTEX",
+    )
+    bake_attribute: StringProperty(
+        name="Attribute",
+        description="Name of the colour attribute the bake writes (replaced only if ovrad made it)",
+        default="ovrad_radiance",
+        maxlen=63,
+    )
+    bake_uv_map: StringProperty(
+        name="UV Map",
+        description="UV map of an image bake (empty: each mesh's active render UV map)",
+        default="",
+        maxlen=63,
+    )
+    bake_image_size: IntProperty(
+        name="Image Size",
+        description="Width and height of a baked image, in texels",
+        default=1024,
+        min=1,
+        max=16384,
+        soft_max=8192,
+    )
+    bake_image_path: StringProperty(
+        name="File",
+        description="OpenEXR file of an image bake; {object} is replaced by the object's name",
+        default="//ovrad/{object}.exr",
+        subtype="FILE_PATH",
+    )
+    bake_domain: EnumProperty(
+        name="Domain",
+        description="Where the colour attribute stores its values",
+        items=(
+            ("POINT", "Vertex", "One value per vertex: angle-weighted average of its face corners (smooth)"),
+            ("CORNER", "Face Corner", "One value per face corner: keeps hard edges between faces"),
+        ),
+        default="POINT",
+    )
+    bake_quantity: EnumProperty(
+        name="Quantity",
+        description="What is baked",
+        items=(
+            (
+                "RADIANCE",
+                "Radiance",
+                "Outgoing diffuse radiance L = B/pi with the surface's own emission (a Cycles DIFFUSE bake "
+                "with colour, plus emission)",
+            ),
+            (
+                "IRRADIANCE",
+                "Irradiance",
+                "Light arriving, without the surface's albedo, as the radiance of a white surface (E/pi)",
+            ),
+        ),
+        default="RADIANCE",
+    )
 
 
 class OVRAD_PG_object(bpy.types.PropertyGroup):
@@ -134,6 +231,13 @@ def atlas_settings(props: OVRAD_PG_settings, objects) -> AtlasSettings:
         shapes=props.shapes,
         max_patches=props.max_patches,
         objects=per_object,
+    )
+
+
+def solve_settings(props: OVRAD_PG_settings) -> SolveSettings:
+    """The frozen engine settings of a solve."""
+    return SolveSettings(
+        tolerance=props.solve_tolerance, rule=props.solve_rule, rays_per_point=props.rays_per_point
     )
 
 

@@ -1,4 +1,5 @@
-"""Reading the Blender scene into engine arrays: evaluated meshes in world space, material colours."""
+"""Reading the Blender scene into engine arrays: evaluated meshes in world space, material colours,
+lamps and the world."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import numpy as np
 
 from ..ovrad_addon import names
 from ..ovrad_addon.errors import OvradError
+from ..ovrad_addon.lights import Lamp
 from ..ovrad_addon.surfaces import Surfaces
 
 # What a surface gets when its material cannot be read (and what Blender renders without a material).
@@ -180,3 +182,132 @@ def read_scene(depsgraph, receivers, occluders=()) -> SceneMeshes:
     )
     # The same material on many objects would repeat its warning.
     return SceneMeshes(surfaces, objects, n_receivers, list(dict.fromkeys(warnings)))
+
+
+def _light_power(light, world_area: float, radius_area: float) -> float:
+    """Blender's power (or sun strength) as Cycles applies it: exposure, and the size factor of
+    lamps whose 'Normalize' is off (their power then grows with their area)."""
+    power = float(light.energy) * 2.0 ** float(getattr(light, "exposure", 0.0))
+    if not getattr(light, "normalize", True):
+        power *= world_area if light.type == "AREA" else radius_area
+    return power
+
+
+def _light_color(light) -> tuple:
+    color = np.array(light.color[:3], float)
+    if getattr(light, "use_temperature", False):
+        color = color * np.array(light.temperature_color[:3], float)
+    return tuple(color)
+
+
+def read_lamps(depsgraph, warnings: list[str] | None = None) -> tuple[Lamp, ...]:
+    """Lamps (engine Lamp, world space, Cycles units) of every light object in the view layer that renders.
+
+    Power is W (point, spot, area) or W/m^2 (sun) times 2^exposure; colour times the blackbody
+    colour when Temperature is used; area sizes are scaled by the object's scale. What the engine
+    does not model (a point/spot radius, a sun's angle, an area lamp's spread, light node trees,
+    non-uniform spot scale) is approximated and named in `warnings`.
+    """
+    warnings = [] if warnings is None else warnings
+    lamps = []
+    for obj in depsgraph.view_layer.objects:
+        # As for meshes: what renders counts (a lamp hidden only in the viewport still lights the render).
+        if obj.type != "LIGHT" or obj.hide_render:
+            continue
+        ev = obj.evaluated_get(depsgraph)
+        light = ev.data
+        m = np.array(ev.matrix_world, dtype=np.float64)
+        axes = m[:3, :3]
+        scale = np.linalg.norm(axes, axis=0)
+        if np.any(scale <= 0):
+            warnings.append(f"lamp '{obj.name}' has zero scale; skipped")
+            continue
+        position = tuple(m[:3, 3])
+        direction = tuple(-axes[:, 2] / scale[2])
+        tangent = tuple(axes[:, 0] / scale[0])
+        kind = light.type
+        radius = float(getattr(light, "shadow_soft_size", 0.0))
+        if getattr(light, "use_nodes", False):
+            warnings.append(f"lamp '{obj.name}': its node tree is ignored (only power and colour are read)")
+        common = dict(position=position, direction=direction, tangent=tangent, color=_light_color(light))
+        if kind in ("POINT", "SPOT"):
+            if radius > 0:
+                warnings.append(
+                    f"lamp '{obj.name}' has radius {radius:g}: its soft shadows are approximated as hard "
+                    "(ovrad lamps are points)"
+                )
+            power = _light_power(light, 0.0, np.pi * radius * radius if radius > 0 else 1.0)
+            if kind == "POINT":
+                lamps.append(Lamp("POINT", power=power, **common))
+                continue
+            if not np.isclose(scale[0], scale[1], rtol=1e-4):
+                warnings.append(f"spot '{obj.name}' has a non-uniform scale: its cone is taken as round")
+            lamps.append(
+                Lamp(
+                    "SPOT",
+                    power=power,
+                    spot_size=float(light.spot_size),
+                    spot_blend=float(light.spot_blend),
+                    **common,
+                )
+            )
+        elif kind == "SUN":
+            angle = float(getattr(light, "angle", 0.0))
+            if angle > np.radians(1.0):
+                warnings.append(
+                    f"sun '{obj.name}' has angle {np.degrees(angle):.1f} degrees: its soft shadows are "
+                    "approximated as hard"
+                )
+            disk = np.pi * np.tan(0.5 * angle) ** 2 if angle > 0 else 1.0
+            lamps.append(Lamp("SUN", power=_light_power(light, 0.0, disk), **common))
+        elif kind == "AREA":
+            shape = light.shape
+            size_x = float(light.size) * scale[0]
+            size_y = float(light.size_y if shape in ("RECTANGLE", "ELLIPSE") else light.size) * scale[1]
+            # Scaled objects turn squares and disks into rectangles and ellipses.
+            if shape in ("SQUARE", "DISK") and not np.isclose(size_x, size_y, rtol=1e-6):
+                shape = "RECTANGLE" if shape == "SQUARE" else "ELLIPSE"
+            spread = float(getattr(light, "spread", np.pi))
+            if spread < np.pi - 1e-4:
+                warnings.append(
+                    f"area lamp '{obj.name}' has spread {np.degrees(spread):.0f} degrees: taken as 180 "
+                    "(a plain diffuse emitter)"
+                )
+            area = size_x * size_y * (np.pi / 4 if shape in ("DISK", "ELLIPSE") else 1.0)
+            lamps.append(
+                Lamp(
+                    "AREA",
+                    power=_light_power(light, area, 1.0),
+                    shape=shape,
+                    size_x=size_x,
+                    size_y=size_y,
+                    **common,
+                )
+            )
+        else:
+            warnings.append(f"lamp '{obj.name}' of type {kind.lower()} is not supported; skipped")
+    return tuple(lamps)
+
+
+def read_world(scene) -> np.ndarray | None:
+    """The world's constant light (3,) = Background colour x strength; zeros without a world.
+
+    None when the world is not a plain Background with nothing linked into it (a sky texture,
+    an HDRI, nodes driving it): then it cannot be read as one colour.
+    """
+    world = scene.world
+    if world is None:
+        return np.zeros(3)
+    legacy = bpy.app.version < (5, 0, 0) and not world.use_nodes
+    if world.node_tree is None or legacy:
+        return np.array(world.color[:3], float)
+    tree = world.node_tree
+    out = tree.get_output_node("CYCLES") or tree.get_output_node("ALL")
+    if out is None or not out.inputs["Surface"].is_linked:
+        return np.zeros(3)
+    node = out.inputs["Surface"].links[0].from_node
+    if node.bl_idname != "ShaderNodeBackground" or any(s.is_linked for s in node.inputs):
+        return None
+    return np.array(node.inputs["Color"].default_value[:3], float) * float(
+        node.inputs["Strength"].default_value
+    )

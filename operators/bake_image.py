@@ -1,0 +1,252 @@
+"""Bake Image: the solved lighting of the selected meshes into float images, saved as 32-bit linear OpenEXR.
+
+The solution is solve.load_solution(): B = pi x the POINT attribute ovrad_radiosity that Solve
+wrote on the atlas objects (float32), with the Solve operator's cached problem when the scene still
+matches it, else the patches located again on the surfaces (cheap: no form factors). Values are
+reconstructed at texel centres on the surface with the engine's radiance_at / irradiance_at,
+dilated by `margin` texels, then written to the file first and only then to the image datablock
+"<object>_ovrad", so a failure changes nothing.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+
+import bpy
+import numpy as np
+from bpy.props import EnumProperty, IntProperty, StringProperty
+
+from ..ovrad_addon import bake, names
+from ..ovrad_addon.errors import OvradError
+from ..ovrad_addon.overlap import alpha_at
+from ..ovrad_addon.pipeline import irradiance_at, radiance_at
+from . import attributes, solve
+
+IMAGE_SUFFIX = "_ovrad"
+IMAGE_MARK = "ovrad_bake"  # custom property on images this operator made (only those are replaced)
+DEFAULT_PATH = "//ovrad/{object}.exr"
+_CHUNK = 1 << 17  # texels reconstructed at once
+# Texel points are moved this fraction of the way to their triangle's centroid, off the exact edge
+# (a texel centre on a UV seam lies on a chart's border, where patch membership is decided).
+INSET = 1e-6
+
+
+def solved_atlases(scene) -> dict:
+    """Source object name -> its atlas object, for atlas objects in the scene holding a solution."""
+    return {
+        o[names.PROP_SOURCE]: o
+        for o in scene.objects
+        if attributes.is_atlas(o) and names.RADIOSITY in o.data.attributes
+    }
+
+
+def uv_triangles(obj, depsgraph, uv_map: str) -> tuple[np.ndarray, np.ndarray]:
+    """UV (T, 3, 2) and world positions (T, 3, 3) of the evaluated mesh's loop triangles."""
+    ev = obj.evaluated_get(depsgraph)
+    mesh = ev.to_mesh()
+    try:
+        layers = mesh.uv_layers
+        if len(layers) == 0:
+            raise OvradError(f"'{obj.name}' has no UV map: unwrap it (UV > Unwrap) before baking to an image")
+        if uv_map:
+            layer = layers.get(uv_map)
+            if layer is None:
+                have = ", ".join(lay.name for lay in layers)
+                raise OvradError(f"'{obj.name}' has no UV map named '{uv_map}' (it has: {have})")
+        else:
+            layer = next((lay for lay in layers if lay.active_render), layers.active or layers[0])
+        nl, nt, nv = len(mesh.loops), len(mesh.loop_triangles), len(mesh.vertices)
+        uv = np.empty(2 * nl, np.float32)
+        layer.data.foreach_get("uv", uv)
+        loops = np.empty(3 * nt, np.int32)
+        mesh.loop_triangles.foreach_get("loops", loops)
+        verts = np.empty(3 * nt, np.int32)
+        mesh.loop_triangles.foreach_get("vertices", verts)
+        co = np.empty(3 * nv, np.float32)
+        mesh.vertices.foreach_get("co", co)
+    finally:
+        ev.to_mesh_clear()
+    m = np.array(ev.matrix_world, dtype=np.float64)
+    world = co.reshape(-1, 3).astype(np.float64) @ m[:3, :3].T + m[:3, 3]
+    return uv.reshape(-1, 2)[loops].reshape(-1, 3, 2).astype(np.float64), world[verts].reshape(-1, 3, 3)
+
+
+def bake_values(problem, radiosity, texels, quantity: str) -> np.ndarray:
+    """Radiance (or irradiance / pi) (k, 3) at texel points, seen from the front side where patches
+    cover it, else from the back (an open mesh whose patches are only on its back)."""
+    fn = irradiance_at if quantity == "IRRADIANCE" else radiance_at
+    out = np.zeros((len(texels), 3))
+    for s in range(0, len(texels), _CHUNK):
+        sl = slice(s, s + _CHUNK)
+        pts, tri = texels.points[sl], texels.triangle[sl]
+        front = alpha_at(problem.atlas, problem.index, pts, tri, 1).getnnz(axis=1) > 0
+        out[sl] = fn(problem, radiosity, pts, tri, np.where(front, 1, -1))
+    # Smooth beta rings slightly below 0 next to contact shadows; light is never negative.
+    return np.maximum(out, 0.0)
+
+
+def resolve_path(template: str, obj_name: str) -> str:
+    """Absolute file path for an object; '//' needs a saved .blend file."""
+    path = template.replace("{object}", bpy.path.clean_name(obj_name))
+    if path.startswith("//") and not bpy.data.filepath:
+        raise OvradError(
+            "the output path is relative ('//') but the .blend file is not saved: give a full path"
+        )
+    path = os.path.abspath(bpy.path.abspath(path))
+    if not path.lower().endswith(".exr"):
+        raise OvradError(f"the output must be an OpenEXR file (.exr), got '{path}'")
+    return path
+
+
+def prepare_folder(path: str, created: list) -> None:
+    """Make the file's folder (recording what was created) and check a file can be written there."""
+    folder = os.path.dirname(path)
+    missing = []
+    probe = folder
+    while not os.path.exists(probe):
+        missing.append(probe)
+        probe = os.path.dirname(probe)
+    try:
+        for d in reversed(missing):
+            os.mkdir(d)
+            created.append(d)
+        if os.path.isdir(path):
+            raise OSError("it is a folder")
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".ovrad-probe-"):
+            pass
+    except OSError as e:
+        raise OvradError(f"cannot write '{path}': {e.strerror or e}") from None
+
+
+def _remove_created(created: list) -> None:
+    for d in reversed(created):
+        try:
+            os.rmdir(d)
+        except OSError:
+            pass
+
+
+def write_image(name: str, pixels: np.ndarray, path: str, stored_path: str) -> bpy.types.Image:
+    """Save pixels (H, W, 4) as a 32-bit float EXR, then create or replace the image `name`."""
+    h, w = pixels.shape[:2]
+    img = bpy.data.images.new(name + ".tmp", w, h, alpha=True, float_buffer=True)
+    try:
+        img.colorspace_settings.name = "Non-Color"  # linear values, no view transform
+        img.pixels.foreach_set(np.ascontiguousarray(pixels, np.float32).ravel())
+        img.file_format = "OPEN_EXR"
+        img.filepath_raw = path
+        img.save()
+    except RuntimeError as e:
+        bpy.data.images.remove(img)
+        raise OvradError(f"cannot write '{path}': {str(e).strip().splitlines()[0]}") from None
+    img.filepath_raw = stored_path
+    img[IMAGE_MARK] = True
+    img.use_fake_user = True  # kept in the saved file even before a material uses it
+    old = bpy.data.images.get(name)
+    if old is not None and old.get(IMAGE_MARK):
+        old.user_remap(img)  # materials using the earlier bake now show this one
+        bpy.data.images.remove(old)
+    img.name = name
+    return img
+
+
+class OVRAD_OT_bake_image(bpy.types.Operator):
+    bl_idname = "ovrad.bake_image"
+    bl_label = "Bake to Image"
+    bl_description = (
+        "Bake the solved lighting of the selected meshes into a float image per mesh through its UV map, "
+        "saved as 32-bit linear OpenEXR and available as the image '<object>_ovrad'"
+    )
+    bl_options = {"REGISTER", "UNDO"}
+
+    uv_map: StringProperty(name="UV Map", description="UV map to bake through (empty: the active render one)")
+    size: IntProperty(
+        name="Size", description="Image width and height in texels", default=1024, min=1, max=16384
+    )
+    margin: IntProperty(
+        name="Margin",
+        description="Texels filled around UV islands so no seams show",
+        default=16,
+        min=0,
+        max=256,
+    )
+    quantity: EnumProperty(
+        name="Quantity",
+        items=(
+            (
+                "RADIANCE",
+                "Radiance",
+                "Outgoing radiance B/pi with the surface's own emission (a Cycles DIFFUSE bake)",
+            ),
+            ("IRRADIANCE", "Irradiance", "Light arriving without the surface's albedo, H/pi (lightmaps)"),
+        ),
+        default="RADIANCE",
+    )
+    filepath: StringProperty(
+        name="File",
+        description="OpenEXR file per object; {object} is replaced by the object's name",
+        default=DEFAULT_PATH,
+        subtype="FILE_PATH",
+    )
+
+    @classmethod
+    def poll(cls, context):
+        if not any(o.type == "MESH" and not attributes.is_atlas(o) for o in context.selected_objects):
+            cls.poll_message_set("Select the meshes to bake")
+            return False
+        return True
+
+    def execute(self, context):
+        start = time.perf_counter()
+        created: list[str] = []
+        try:
+            targets = [o for o in context.selected_objects if o.type == "MESH" and not attributes.is_atlas(o)]
+            solved = solved_atlases(context.scene)
+            unsolved = [o.name for o in targets if o.name not in solved]
+            if unsolved:
+                raise OvradError(f"not solved: {', '.join(unsolved)}: generate an atlas and run Solve first")
+            if len(targets) > 1 and "{object}" not in self.filepath:
+                raise OvradError("several objects are selected: put {object} in the file path")
+            depsgraph = context.evaluated_depsgraph_get()
+            jobs = []
+            for obj in targets:  # every check before any computation or write
+                uv, world = uv_triangles(obj, depsgraph, self.uv_map)
+                jobs.append((obj, uv, world, resolve_path(self.filepath, obj.name)))
+            for *_, path in jobs:
+                prepare_folder(path, created)
+            solution = solve.load_solution(context)
+            problem, radiosity, firsts = solution.problem, solution.radiosity, solution.first_triangle
+            order = [o.name for o in solution.receivers]
+            results = []
+            for obj, uv, world, path in jobs:
+                k = order.index(obj.name)
+                if len(uv) != int(np.sum(problem.surfaces.object_index == k)):
+                    raise OvradError(f"'{obj.name}' changed since it was read: try again")
+                ids = firsts[k] + np.arange(len(uv))
+                texels = bake.rasterize(uv, world, ids, self.size, self.size, inset=INSET)
+                if len(texels) == 0:
+                    raise OvradError(f"the UV map of '{obj.name}' covers no texel centre at {self.size} px")
+                values = bake_values(problem, radiosity, texels, self.quantity)
+                img, mask = bake.to_image(texels, values, self.size, self.size)
+                img, mask = bake.dilate(img, mask, self.margin)
+                img[..., 3] = mask
+                results.append((obj, img, path))
+            images = []
+            for obj, img, path in results:
+                stored = path
+                if self.filepath.startswith("//"):
+                    stored = bpy.path.relpath(path)
+                images.append(write_image(obj.name + IMAGE_SUFFIX, img, path, stored))
+        except OvradError as e:
+            _remove_created(created)
+            self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        seconds = time.perf_counter() - start
+        listed = ", ".join(f"'{i.name}'" for i in images)
+        self.report({"INFO"}, f"ovrad: baked {listed} ({self.size} px) in {seconds:.2f} s")
+        return {"FINISHED"}
+
+
+classes = (OVRAD_OT_bake_image,)

@@ -1,0 +1,426 @@
+"""Headless batch baking with ovrad: generate the atlas, solve, bake to vertex colours or images, save."""
+
+# Usage: blender -b scene.blend -P scripts/ovrad_batch.py -- --output out.blend [options]
+#        blender -b -c ovrad --input scene.blend --output out.blend [options]   (extension installed)
+# Works with the extension installed (any repository) or straight from a checkout; also shipped inside
+# the extension. Exit status 0 on success; on an error one line "ovrad: error: ..." and status 1.
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import importlib.util
+import json
+import os
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import bpy
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+PROG = "ovrad"
+
+
+class BatchError(Exception):
+    """A user error: printed as one line, exit status 1."""
+
+
+class Parser(argparse.ArgumentParser):
+    def error(self, message):
+        raise BatchError(f"{message} (see --help)")
+
+
+def enable_ovrad():
+    """The ovrad module, registered: already enabled, else an installed extension, else this checkout."""
+    if hasattr(bpy.types, "OVRAD_OT_generate_atlas"):
+        for name, mod in sys.modules.items():
+            if (name == "ovrad" or name.endswith(".ovrad")) and hasattr(mod, "register"):
+                return mod
+        return None
+    import addon_utils
+
+    for mod in addon_utils.modules(refresh=False):
+        if mod.__name__.startswith("bl_ext.") and mod.__name__.endswith(".ovrad"):
+            module = addon_utils.enable(mod.__name__, default_set=False)
+            if module is not None and hasattr(bpy.types, "OVRAD_OT_generate_atlas"):
+                return module
+    # A checkout: load the repository root as the package "ovrad" (the engine is imported relatively).
+    spec = importlib.util.spec_from_file_location(
+        "ovrad", ROOT / "__init__.py", submodule_search_locations=[str(ROOT)]
+    )
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["ovrad"] = module
+    spec.loader.exec_module(module)
+    module.register()
+    return module
+
+
+# (group, option, argparse keywords): every option of the batch bake.
+OPTIONS = [
+    ("files", "--input", dict(help="open this .blend first (needed with -c, where no file is open)")),
+    ("files", "--output", dict(help="save the result to this .blend (never the input file)")),
+    ("files", "--in-place", dict(action="store_true", help="save over the input file instead")),
+    ("files", "--report", dict(help="write a JSON report: patch and ray counts, seconds per stage, ...")),
+    ("files", "--picture", dict(help="render a PNG of the baked result with Cycles (emission preview)")),
+    ("files", "--picture-size", dict(type=int, default=384, help="picture width and height (px)")),
+    ("files", "--picture-samples", dict(type=int, default=16, help="Cycles samples for the picture")),
+    ("atlas", "--receivers", dict(nargs="+", help="mesh names or a comma list (default: all visible)")),
+    ("size", "--patch-count", dict(type=int, help="target number of patches over all receivers")),
+    ("size", "--patch-size", dict(type=float, help="patch spacing in scene units")),
+    ("atlas", "--overlap", dict(type=float, help="patch radius over the just-covering radius (1 to 4)")),
+    ("atlas", "--beta", dict(choices=("box", "smooth"), help="patch weight profile")),
+    ("solve", "--solver", dict(choices=("exact", "paper"), help="exact eq. (9) or the paper's rule")),
+    ("solve", "--tolerance", dict(type=float, help="stop when unshot light < this fraction of the emitted")),
+    ("solve", "--rays-per-point", dict(type=int, help="hemisphere rays per surface sample (form factors)")),
+    ("bake", "--target", dict(choices=("vertex", "image"), default="vertex")),
+    ("bake", "--quantity", dict(choices=("radiance", "irradiance"), default="radiance")),
+    ("bake", "--attribute", dict(default="ovrad_radiance", help="vertex: colour attribute name")),
+    ("bake", "--domain", dict(choices=("POINT", "CORNER"), default="POINT", help="vertex: attribute domain")),
+    ("bake", "--uv", dict(default="", help="image: UV map name (default: the active render UV map)")),
+    ("bake", "--size", dict(type=int, default=1024, help="image: width and height in texels")),
+    ("bake", "--margin", dict(type=int, default=16, help="image: dilation margin in texels")),
+    ("bake", "--image-path", dict(help="image: EXR path, {object}: its name (OUTDIR/ovrad/{object}.exr)")),
+]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = Parser(prog=PROG, description=__doc__)
+    groups = {g: p.add_argument_group(g) for g in ("files", "atlas", "solve", "bake")}
+    groups["atlas"].description = "default: the file's ovrad settings"
+    groups["size"] = groups["atlas"].add_mutually_exclusive_group()
+    for group, option, kw in OPTIONS:
+        groups[group].add_argument(option, **kw)
+    return p
+
+
+def parse(argv: list[str]) -> argparse.Namespace:
+    args = build_parser().parse_args(argv)
+    if args.in_place and args.output:
+        raise BatchError("--output and --in-place exclude each other")
+    if not args.in_place and not args.output:
+        raise BatchError("nothing would be saved: give --output OUT.blend (or --in-place)")
+    for name in ("patch_count", "size", "picture_size", "picture_samples", "rays_per_point"):
+        v = getattr(args, name)
+        if v is not None and v < 1:
+            raise BatchError(f"--{name.replace('_', '-')} must be at least 1, got {v}")
+    if args.patch_size is not None and not args.patch_size > 0:
+        raise BatchError(f"--patch-size must be positive, got {args.patch_size}")
+    if args.tolerance is not None and not 0 < args.tolerance < 1:
+        raise BatchError(f"--tolerance must be between 0 and 1, got {args.tolerance}")
+    if args.receivers:
+        args.receivers = [n for item in args.receivers for n in item.split(",") if n]
+    return args
+
+
+def visible_meshes(scene) -> list:
+    """Every mesh that renders and is visible, except ovrad atlas objects."""
+    return [
+        o
+        for o in bpy.context.view_layer.objects
+        if o.type == "MESH" and "ovrad_source" not in o and not o.hide_render and o.visible_get()
+    ]
+
+
+def pick_receivers(scene, names: list[str] | None) -> list:
+    if not names:
+        found = visible_meshes(scene)
+        if not found:
+            raise BatchError("the scene has no visible mesh to bake")
+        return found
+    out = []
+    for name in names:
+        obj = scene.objects.get(name)
+        if obj is None:
+            meshes = ", ".join(o.name for o in visible_meshes(scene)) or "none"
+            raise BatchError(f"no object named '{name}' in the scene (meshes: {meshes})")
+        if obj.type != "MESH":
+            raise BatchError(f"'{name}' is not a mesh ({obj.type.lower()})")
+        out.append(obj)
+    return out
+
+
+def operator(op, **kw) -> None:
+    """Run an ovrad operator; its error report becomes a BatchError."""
+    try:
+        result = op(**kw)
+    except RuntimeError as e:
+        lines = [ln.strip() for ln in str(e).splitlines() if ln.strip()]
+        raise BatchError((lines[0] if lines else str(e)).removeprefix("Error: ")) from None
+    if "FINISHED" not in result:
+        raise BatchError(f"{op.idname_py()} did not finish ({', '.join(result)})")
+
+
+def select(objects) -> None:
+    for obj in bpy.context.view_layer.objects:
+        obj.select_set(obj in objects)
+    bpy.context.view_layer.objects.active = objects[0] if objects else None
+
+
+SOLVE_PROPS = {"solver": "solve_rule", "tolerance": "solve_tolerance", "rays_per_point": "rays_per_point"}
+
+
+def apply_settings(props, args) -> None:
+    """The options given, onto the scene's ovrad settings (the rest stay as the file has them)."""
+    if args.patch_count is not None:
+        props.size_mode, props.patch_count = "COUNT", args.patch_count
+    if args.patch_size is not None:
+        props.size_mode, props.patch_size = "SIZE", args.patch_size
+    if args.overlap is not None:
+        if not 1.0 <= args.overlap <= 4.0:
+            raise BatchError(f"--overlap must be between 1 and 4, got {args.overlap}")
+        props.overlap = args.overlap
+    if args.beta:
+        props.beta = args.beta
+    for opt, prop in SOLVE_PROPS.items():
+        if getattr(args, opt) is not None:
+            setattr(props, prop, getattr(args, opt))
+    props.bake_target, props.bake_quantity = args.target.upper(), args.quantity.upper()
+    props.bake_attribute, props.bake_domain = args.attribute, args.domain
+
+
+def output_paths(args) -> tuple[str, str]:
+    """(input path, output path), refusing to overwrite the input unless --in-place."""
+    src = bpy.data.filepath
+    if args.in_place:
+        if not src:
+            raise BatchError("--in-place needs a saved .blend file open")
+        return src, src
+    out = os.path.abspath(args.output)
+    if not out.lower().endswith(".blend"):
+        raise BatchError(f"--output must be a .blend file, got '{args.output}'")
+    if src and os.path.realpath(out) == os.path.realpath(src):
+        raise BatchError(f"refusing to overwrite the input file {src}: use --in-place to do that")
+    return src, out
+
+
+def check_writable(path: str, what: str) -> None:
+    """Make the folder of `path` and check it is a folder we can write into."""
+    folder = os.path.dirname(os.path.abspath(path))
+    try:
+        os.makedirs(folder, exist_ok=True)
+    except OSError as e:
+        raise BatchError(f"cannot write the {what} '{path}': {e.strerror}") from None
+    if not os.access(folder, os.W_OK) or os.path.isdir(path):
+        raise BatchError(f"cannot write the {what} '{path}'")
+
+
+def run_solve(module) -> dict:
+    """Run ovrad.solve; return its statistics (rays, unshot fraction, shots, converged).
+
+    Read from the scene's "ovrad_solve" record when the Solve operator writes one, else taken from
+    the finished job that operators/solve.py's finish() sees (wrapped for the duration of the call).
+    """
+    solve_mod = getattr(getattr(module, "operators", None), "solve", None)
+    seen = []
+    original = getattr(solve_mod, "finish", None)
+    if original is not None:
+
+        def finish(scene, job, saved):
+            seen.append(job)
+            return original(scene, job, saved)
+
+        solve_mod.finish = finish
+    try:
+        operator(bpy.ops.ovrad.solve)
+    finally:
+        if original is not None:
+            solve_mod.finish = original
+    record = bpy.context.scene.get("ovrad_solve")
+    if record is not None:
+        return {k: record[k] for k in record.keys()}
+    if not seen or seen[-1].state is None:
+        return {}
+    job = seen[-1]
+    st = job.state
+    return {
+        "rays": int(st.rays),
+        "transport_rays": int(job.problem.rays),
+        "form_factors_reused": bool(job.reused),
+        "shots": int(st.shots),
+        "unshot_fraction": float(st.history[-1][1]) if st.history else 0.0,
+        "converged": bool(st.converged),
+    }
+
+
+def show_bake(obj, args) -> np.ndarray:
+    """Give a receiver an emission-only material showing its bake; return its baked RGB values."""
+    mat = bpy.data.materials.new(f"{obj.name}_ovrad_picture")
+    if mat.node_tree is None:
+        mat.use_nodes = True  # Blender < 5.0
+    tree = mat.node_tree
+    tree.nodes.clear()
+    emit = tree.nodes.new("ShaderNodeEmission")
+    tree.links.new(emit.outputs[0], tree.nodes.new("ShaderNodeOutputMaterial").inputs["Surface"])
+    if args.target == "vertex":
+        src = tree.nodes.new("ShaderNodeAttribute")
+        src.attribute_name = args.attribute
+        data = obj.data.color_attributes.get(args.attribute)
+        values = np.empty(len(data.data) * 4 if data else 0, np.float32)
+        if data:
+            data.data.foreach_get("color", values)
+    else:
+        src = tree.nodes.new("ShaderNodeTexImage")
+        src.image = bpy.data.images.get(obj.name + "_ovrad")
+        values = np.empty(len(src.image.pixels) if src.image else 0, np.float32)
+        if src.image:
+            src.image.pixels.foreach_get(values)
+        if args.uv:
+            uv = tree.nodes.new("ShaderNodeUVMap")
+            uv.uv_map = args.uv
+            tree.links.new(uv.outputs["UV"], src.inputs["Vector"])
+    tree.links.new(src.outputs["Color"], emit.inputs["Color"])
+    obj.data.materials.clear()
+    obj.data.materials.append(mat)
+    values = values.reshape(-1, 4)
+    return values[values[:, 3] > 0, :3]
+
+
+def render_picture(scene, receivers, atlases, args) -> None:
+    """After saving: receivers show their bake as emission, lamps and atlases hidden, Cycles, no bounces."""
+    for obj in scene.objects:
+        if obj.type == "LIGHT" or obj in atlases:
+            obj.hide_render = True
+    values = np.concatenate([np.zeros((1, 3))] + [show_bake(o, args) for o in receivers])
+    bright = float(np.percentile(values.max(axis=1), 95))  # exposure: this maps to 0.8
+    c = scene.cycles
+    scene.render.engine, c.device, c.samples = "CYCLES", "CPU", args.picture_samples
+    c.use_adaptive_sampling = c.use_denoising = False
+    c.max_bounces = 0  # the surfaces emit their baked light: nothing to bounce
+    if scene.world is not None:
+        scene.world.color = (0, 0, 0)
+        bg = scene.world.node_tree.nodes.get("Background") if scene.world.node_tree else None
+        if bg is not None:
+            bg.inputs["Strength"].default_value = 0.0
+    scene.render.resolution_x = scene.render.resolution_y = args.picture_size
+    scene.render.resolution_percentage = 100
+    view = scene.view_settings
+    view.view_transform, view.look = "Standard", "None"
+    view.exposure = float(np.clip(np.log2(0.8 / max(bright, 1e-6)), -10, 10))
+    scene.render.image_settings.file_format = "PNG"
+    scene.render.filepath = os.path.abspath(args.picture)
+    bpy.ops.render.render(write_still=True)
+
+
+def run(args) -> dict:
+    start = time.perf_counter()
+    if args.input:
+        if not os.path.isfile(args.input):
+            raise BatchError(f"cannot open '{args.input}': no such file")
+        bpy.ops.wm.open_mainfile(filepath=os.path.abspath(args.input))
+    elif not bpy.data.filepath:
+        raise BatchError("no .blend file is open: pass one to blender before -P, or use --input FILE.blend")
+    src, out = output_paths(args)
+    for path, what in ((out, "output"), (args.report, "report"), (args.picture, "picture")):
+        if path:
+            check_writable(path, what)
+    module = enable_ovrad()
+    scene = bpy.context.scene
+    if args.picture and scene.camera is None:
+        raise BatchError("the scene has no camera to render --picture from")
+    props = scene.ovrad
+    apply_settings(props, args)
+    receivers = pick_receivers(scene, args.receivers)
+    seconds = {}
+
+    select(receivers)
+    t = time.perf_counter()
+    operator(bpy.ops.ovrad.generate_atlas)
+    seconds["generate"] = time.perf_counter() - t
+    names = {o.name for o in receivers}
+    atlases = [o for o in scene.objects if o.get("ovrad_source") in names]
+
+    t = time.perf_counter()
+    stats = run_solve(module)
+    seconds["solve"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    images, skipped = [], []
+    if args.target == "vertex":
+        operator(
+            bpy.ops.ovrad.bake_vertex,
+            attribute=args.attribute,
+            domain=args.domain,
+            quantity=args.quantity.upper(),
+        )
+    else:
+        with_uv = [o for o in receivers if len(o.data.uv_layers)]
+        skipped = [o.name for o in receivers if o not in with_uv]
+        if not with_uv:
+            raise BatchError(
+                "no receiver has a UV map to bake an image through: unwrap them or use --target vertex"
+            )
+        for name in skipped:
+            print(f"ovrad: '{name}' has no UV map: not baked to an image", flush=True)
+        template = args.image_path or os.path.join(os.path.dirname(out), "ovrad", "{object}.exr")
+        if args.in_place and not args.image_path:
+            template = "//ovrad/{object}.exr"
+        select(with_uv)
+        operator(
+            bpy.ops.ovrad.bake_image,
+            uv_map=args.uv,
+            size=args.size,
+            margin=args.margin,
+            quantity=args.quantity.upper(),
+            filepath=template,
+        )
+        images = [bpy.path.abspath(bpy.data.images[o.name + "_ovrad"].filepath_raw) for o in with_uv]
+    seconds["bake"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    if args.in_place:
+        bpy.ops.wm.save_mainfile(filepath=out)
+    else:
+        bpy.ops.wm.save_as_mainfile(filepath=out, copy=True)
+    seconds["save"] = time.perf_counter() - t
+    keys = ("rays", "unshot_fraction", "shots", "converged")
+    report = dict(input=src, output=out, ovrad=getattr(module, "__name__", "ovrad"))
+    report |= dict(receivers=[o.name for o in receivers], patches=sum(len(o.data.vertices) for o in atlases))
+    report |= {k: stats.get(k) for k in keys} | dict(solver=props.solve_rule, beta=props.beta)
+    report |= dict(overlap=round(props.overlap, 6), tolerance=float(f"{props.solve_tolerance:.6g}"))
+    report |= dict(target=args.target, quantity=args.quantity, images=images, not_baked=skipped)
+    report["attribute"] = args.attribute if args.target == "vertex" else None
+    if args.picture:
+        t = time.perf_counter()
+        render_picture(scene, receivers, atlases, args)
+        seconds["picture"] = time.perf_counter() - t
+    seconds["total"] = time.perf_counter() - start
+    report["seconds"] = {k: round(v, 3) for k, v in seconds.items()}
+    if args.report:
+        with open(args.report, "w", encoding="utf-8") as fh:
+            json.dump(report, fh, indent=2)
+    return report
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run a batch bake; returns the exit status (0 success, 1 error with one line on stderr)."""
+    if argv is None:
+        argv = sys.argv[sys.argv.index("--") + 1 :] if "--" in sys.argv else []
+    try:
+        with warnings.catch_warnings():  # numpy's RuntimeWarnings would break the one-line contract
+            warnings.simplefilter("ignore", RuntimeWarning)
+            report = run(parse(argv))
+    except SystemExit as e:  # --help
+        return e.code if isinstance(e.code, int) else 0
+    except BatchError as e:
+        print(f"{PROG}: error: {e}", file=sys.stderr, flush=True)
+        return 1
+    except Exception as e:  # the engine's OvradError and anything unforeseen: still one line
+        kind = "" if type(e).__name__ == "OvradError" else f"{type(e).__name__}: "
+        print(f"{PROG}: error: {kind}{e}".splitlines()[0], file=sys.stderr, flush=True)
+        return 1
+    s = report["seconds"]
+    print(
+        f"ovrad: {report['patches']} patches, {report['rays'] or 0:,} rays, solved in {s['solve']:.2f} s, "
+        f"total {s['total']:.2f} s -> {report['output']}",
+        flush=True,
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    code = main()
+    if code:
+        sys.exit(code)

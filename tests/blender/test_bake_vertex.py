@@ -1,0 +1,178 @@
+"""Bake Vertex Colors through the installed extension: domains, quantities, replacing only its own
+attribute, never a user's, topology-changing modifiers, and baking before solving."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+bmesh = pytest.importorskip("bmesh")
+
+pytestmark = pytest.mark.blender
+
+RHO, LE = 0.6, 1.0  # furnace: L = LE / (1 - RHO) = 2.5; light arriving, E / pi, is the same 2.5
+
+
+def closed_box(name="Box", cuts=3):
+    """A 2 m cube seen from inside, uniform emission LE and reflectance RHO."""
+    mesh = bpy.data.meshes.new(name)
+    bm = bmesh.new()
+    bmesh.ops.create_cube(bm, size=2.0)
+    bmesh.ops.subdivide_edges(bm, edges=bm.edges[:], cuts=cuts, use_grid_fill=True)
+    bmesh.ops.reverse_faces(bm, faces=bm.faces[:])
+    bm.to_mesh(mesh)
+    bm.free()
+    obj = bpy.data.objects.new(name, mesh)
+    bpy.context.scene.collection.objects.link(obj)
+    mat = bpy.data.materials.new("furnace")
+    if mat.node_tree is None:
+        mat.use_nodes = True
+    bsdf = mat.node_tree.nodes["Principled BSDF"]
+    bsdf.inputs["Base Color"].default_value = (RHO, RHO, RHO, 1.0)
+    bsdf.inputs["Emission Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    bsdf.inputs["Emission Strength"].default_value = LE
+    mesh.materials.append(mat)
+    bpy.context.view_layer.update()
+    for o in bpy.context.view_layer.objects:
+        o.select_set(o == obj)
+    bpy.context.view_layer.objects.active = obj
+    return obj
+
+
+def colors(mesh, name):
+    attr = mesh.attributes[name]
+    out = np.empty(4 * len(attr.data), np.float32)
+    attr.data.foreach_get("color", out)
+    return out.reshape(-1, 4)
+
+
+@pytest.fixture
+def box(ovrad, fresh_scene):
+    fresh_scene.ovrad.patch_count = 300
+    fresh_scene.ovrad.solve_tolerance = 1e-4
+    obj = closed_box()
+    assert bpy.ops.ovrad.generate_atlas() == {"FINISHED"}
+    return obj
+
+
+@pytest.fixture
+def solved(box):
+    assert bpy.ops.ovrad.solve() == {"FINISHED"}
+    return box
+
+
+def test_point_and_corner_domains_hold_the_furnace_answer(solved):
+    mesh = solved.data
+    assert bpy.ops.ovrad.bake_vertex(domain="CORNER", attribute="corner") == {"FINISHED"}
+    attr = mesh.attributes["corner"]
+    assert (attr.data_type, attr.domain, len(attr.data)) == ("FLOAT_COLOR", "CORNER", len(mesh.loops))
+    np.testing.assert_allclose(colors(mesh, "corner")[:, :3], LE / (1 - RHO), rtol=0.02)
+    assert bpy.ops.ovrad.bake_vertex() == {"FINISHED"}  # the panel's defaults: ovrad_radiance, POINT
+    attr = mesh.attributes["ovrad_radiance"]
+    assert (attr.domain, len(attr.data)) == ("POINT", len(mesh.vertices))
+    values = colors(mesh, "ovrad_radiance")
+    np.testing.assert_allclose(values[:, :3], LE / (1 - RHO), rtol=0.02)
+    assert np.all(values[:, 3] == 1.0)
+    # Shown: the active and the render colour.
+    assert mesh.color_attributes.active_color_name == "ovrad_radiance"
+    assert mesh.color_attributes[mesh.color_attributes.render_color_index].name == "ovrad_radiance"
+
+
+def test_irradiance_is_the_light_arriving_without_albedo_or_emission(solved):
+    mesh = solved.data
+    bpy.ops.ovrad.bake_vertex(attribute="L", quantity="RADIANCE")
+    bpy.ops.ovrad.bake_vertex(attribute="H", quantity="IRRADIANCE")
+    L, H = colors(mesh, "L")[:, :3], colors(mesh, "H")[:, :3]
+    # Closed box: what arrives is the room's radiance L = LE / (1 - RHO); what leaves is LE + RHO H.
+    np.testing.assert_allclose(H, LE / (1 - RHO), rtol=0.02)
+    np.testing.assert_allclose(L, LE + RHO * H, rtol=1e-4)
+
+
+def test_baking_twice_replaces_its_own_attribute(solved):
+    mesh = solved.data
+    bpy.ops.ovrad.bake_vertex()
+    names_before = sorted(a.name for a in mesh.attributes)
+    first = colors(mesh, "ovrad_radiance").copy()
+    strength = mesh.materials[0].node_tree.nodes["Principled BSDF"].inputs["Emission Strength"]
+    strength.default_value = 2 * LE
+    bpy.ops.ovrad.solve()
+    assert bpy.ops.ovrad.bake_vertex(domain="CORNER") == {"FINISHED"}
+    assert sorted(a.name for a in mesh.attributes) == names_before  # replaced, not duplicated
+    assert [a.name for a in mesh.color_attributes].count("ovrad_radiance") == 1
+    attr = mesh.attributes["ovrad_radiance"]
+    assert attr.domain == "CORNER"
+    np.testing.assert_allclose(colors(mesh, "ovrad_radiance")[:, :3], 2 * first[0, 0], rtol=0.02)
+
+
+def test_a_users_attribute_of_that_name_is_never_overwritten(solved):
+    mesh = solved.data
+    mine = mesh.color_attributes.new("ovrad_radiance", "BYTE_COLOR", "CORNER")
+    mine.data.foreach_set("color", np.full(4 * len(mesh.loops), 0.25, np.float32))
+    before = colors(mesh, "ovrad_radiance").copy()
+    with pytest.raises(
+        RuntimeError, match="already has an attribute 'ovrad_radiance' that ovrad did not make"
+    ):
+        bpy.ops.ovrad.bake_vertex()
+    attr = mesh.attributes["ovrad_radiance"]
+    assert (attr.data_type, attr.domain) == ("BYTE_COLOR", "CORNER")
+    assert np.array_equal(colors(mesh, "ovrad_radiance"), before)
+    # Another name works, and the user's attribute is still untouched.
+    assert bpy.ops.ovrad.bake_vertex(attribute="baked") == {"FINISHED"}
+    assert np.array_equal(colors(mesh, "ovrad_radiance"), before)
+
+
+def test_an_attribute_the_user_made_or_changed_under_a_baked_name_is_kept(solved):
+    mesh = solved.data
+    bpy.ops.ovrad.bake_vertex(attribute="lit")
+    mesh.attributes.remove(mesh.attributes["lit"])
+    mesh.attributes.new("lit", "FLOAT_COLOR", "POINT")  # the user's own, under the old name
+    before = colors(mesh, "lit").copy()
+    with pytest.raises(RuntimeError, match="that ovrad did not make"):
+        bpy.ops.ovrad.bake_vertex(attribute="lit")
+    assert np.array_equal(colors(mesh, "lit"), before)
+    # A bake the user painted over is theirs now too.
+    bpy.ops.ovrad.bake_vertex(attribute="painted")
+    mesh.attributes["painted"].data[0].color = (1.0, 0.0, 0.0, 1.0)
+    with pytest.raises(RuntimeError, match="that ovrad did not make"):
+        bpy.ops.ovrad.bake_vertex(attribute="painted")
+    assert tuple(mesh.attributes["painted"].data[0].color) == (1.0, 0.0, 0.0, 1.0)
+
+
+def test_topology_changing_modifiers_are_refused_with_what_to_do(box):
+    box.modifiers.new("Subdivision", "SUBSURF")
+    bpy.ops.ovrad.generate_atlas()  # the atlas of the subdivided surface
+    assert bpy.ops.ovrad.solve() == {"FINISHED"}
+    attributes = sorted(a.name for a in box.data.attributes)
+    with pytest.raises(RuntimeError, match="apply the modifiers first"):
+        bpy.ops.ovrad.bake_vertex()
+    assert sorted(a.name for a in box.data.attributes) == attributes
+
+
+def test_baking_before_solving_says_to_solve(box):
+    with pytest.raises(RuntimeError, match="press Solve first"):
+        bpy.ops.ovrad.bake_vertex()
+    assert "ovrad_radiance" not in box.data.attributes
+
+
+def test_an_empty_attribute_name_is_refused(solved):
+    with pytest.raises(RuntimeError, match="attribute name"):
+        bpy.ops.ovrad.bake_vertex(attribute="  ")
+
+
+def test_undo_takes_back_a_solve_and_a_bake(box):
+    # Background bpy.ops push no undo steps: push the ones the UI pushes around UNDO operators.
+    bpy.ops.ed.undo_push(message="before")
+    bpy.ops.ovrad.solve()
+    bpy.ops.ed.undo_push(message="Solve")
+    bpy.ops.ovrad.bake_vertex()
+    bpy.ops.ed.undo_push(message="Bake Vertex Colors")
+    box = bpy.data.objects["Box"]
+    assert "ovrad_radiance" in box.data.attributes
+    bpy.ops.ed.undo()
+    box = bpy.data.objects["Box"]  # undo reloads the data: look objects up again
+    atlas = next(o for o in bpy.data.objects if o.get("ovrad_source") == "Box")
+    assert "ovrad_radiance" not in box.data.attributes and "ovrad_radiosity" in atlas.data.attributes
+    bpy.ops.ed.undo()
+    atlas = next(o for o in bpy.data.objects if o.get("ovrad_source") == "Box")
+    assert "ovrad_radiosity" not in atlas.data.attributes
