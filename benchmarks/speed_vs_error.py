@@ -33,7 +33,18 @@ import make_reference  # noqa: E402  (benchmarks/ is not a package)
 import scenes  # noqa: E402
 
 RESULTS = HERE / "results"
-FIELDS = ["method", "beta", "solver", "patches", "samples", "seconds", "error", "read_s", "generate_s"]
+FIELDS = [
+    "method",
+    "beta",
+    "solver",
+    "direct",
+    "patches",
+    "samples",
+    "seconds",
+    "error",
+    "read_s",
+    "generate_s",
+]
 FIELDS += ["prepare_s", "solve_s", "reconstruct_s", "rays", "unshot"]
 
 
@@ -59,7 +70,7 @@ def vertex_triangles(surfaces, n_vertices: int) -> np.ndarray:
 
 def run_ovrad(read, ref, counts, betas, solvers, rows) -> None:
     from ovrad.ovrad_addon.atlas import build_atlas
-    from ovrad.ovrad_addon.pipeline import SolveSettings, prepare, radiance_at, solve
+    from ovrad.ovrad_addon.pipeline import SolveSettings, direct_light, prepare, radiance_at, solve
     from ovrad.ovrad_addon.settings import AtlasSettings
 
     surfaces, lamps, read_s, points, tri = read
@@ -76,33 +87,40 @@ def run_ovrad(read, ref, counts, betas, solvers, rows) -> None:
                 t = time.perf_counter()
                 state = solve(problem, lamps, SolveSettings(rule=rule))
                 solve_s = time.perf_counter() - t
-                t = time.perf_counter()
-                L = radiance_at(problem, state.radiosity, points, tri, 1)
-                rec_s = time.perf_counter() - t
-                total = read_s + gen_s + prep_s + solve_s + rec_s
-                err = scenes.relative_rms(L, ref["radiance"], mask)
-                unshot = state.history[-1][1] if state.history else 0.0
-                rows.append(
-                    dict(
-                        method="ovrad",
-                        beta=beta,
-                        solver=rule,
-                        patches=len(atlas),
-                        samples="",
-                        seconds=round(total, 3),
-                        error=round(err, 5),
-                        read_s=round(read_s, 3),
-                        generate_s=round(gen_s, 3),
-                        prepare_s=round(prep_s, 3),
-                        solve_s=round(solve_s, 3),
-                        reconstruct_s=round(rec_s, 3),
-                        rays=state.rays,
-                        unshot=f"{unshot:.2e}",
+                for direct in ("points", "patches"):
+                    t = time.perf_counter()
+                    if direct == "points":
+                        light = direct_light(problem, lamps, SolveSettings())
+                        L = radiance_at(problem, state.radiosity, points, tri, 1, state.first_shot, light)
+                    else:
+                        L = radiance_at(problem, state.radiosity, points, tri, 1)
+                    rec_s = time.perf_counter() - t
+                    total = read_s + gen_s + prep_s + solve_s + rec_s
+                    err = scenes.relative_rms(L, ref["radiance"], mask)
+                    unshot = state.history[-1][1] if state.history else 0.0
+                    rows.append(
+                        dict(
+                            method="ovrad",
+                            beta=beta,
+                            solver=rule,
+                            direct=direct,
+                            patches=len(atlas),
+                            samples="",
+                            seconds=round(total, 3),
+                            error=round(err, 5),
+                            read_s=round(read_s, 3),
+                            generate_s=round(gen_s, 3),
+                            prepare_s=round(prep_s, 3),
+                            solve_s=round(solve_s, 3),
+                            reconstruct_s=round(rec_s, 3),
+                            rays=state.rays,
+                            unshot=f"{unshot:.2e}",
+                        )
                     )
-                )
-                print(
-                    f"speed_vs_error: ovrad {len(atlas):6d} {beta:6s} {rule:5s} {total:7.2f} s  err {err:.4f}"
-                )
+                    print(
+                        f"speed_vs_error: ovrad {len(atlas):6d} {beta:6s} {rule:5s} direct at {direct:7s} "
+                        f"{total:7.2f} s  err {err:.4f}"
+                    )
 
 
 def run_cycles(objects, ref, samples_list, rows) -> None:
@@ -112,8 +130,8 @@ def run_cycles(objects, ref, samples_list, rows) -> None:
         values, seconds = scenes.cycles_vertex_bake(objects, samples, seed=0)
         err = scenes.relative_rms(values, ref["radiance"][:n], mask)
         rows.append(
-            dict(method="cycles", beta="", solver="", patches="", samples=samples, seconds=round(seconds, 3))
-            | dict(error=round(err, 5))
+            dict(method="cycles", beta="", solver="", direct="", patches="", samples=samples)
+            | dict(seconds=round(seconds, 3), error=round(err, 5))
         )
         print(f"speed_vs_error: cycles {samples:5d} samples {seconds:7.2f} s  err {err:.4f}")
 
@@ -153,19 +171,29 @@ def plot(rows, path: Path, title: str, noise: float) -> None:
             textcoords="offset points",
         )
     styles = {
-        ("smooth", "exact"): "C0-s",
-        ("box", "exact"): "C1-^",
-        ("smooth", "paper"): "C0--x",
-        ("box", "paper"): "C1--x",
+        ("smooth", "exact", "points"): ("C0-s", "smooth beta, exact solver, direct at vertices"),
+        ("box", "exact", "points"): ("C1-^", "box beta, exact solver, direct at vertices"),
+        ("box", "paper", "points"): ("C2-.v", "box beta, paper's rule, direct at vertices"),
+        ("smooth", "exact", "patches"): ("C0--x", "smooth beta, exact solver, all from patches"),
+        ("box", "exact", "patches"): ("C1--x", "box beta, exact solver, all from patches"),
     }
-    for (beta, rule), style in styles.items():
+    for key, (style, label) in styles.items():
         pts = sorted(
-            (r["seconds"], r["error"], r["patches"]) for r in rows if (r["beta"], r["solver"]) == (beta, rule)
+            (r["seconds"], r["error"])
+            for r in rows
+            if r["method"] == "ovrad" and (r["beta"], r["solver"], r["direct"]) == key
         )
         if pts:
-            ax.plot(
-                [p[0] for p in pts], [p[1] for p in pts], style, label=f"ovrad {beta} beta, {rule} solver"
-            )
+            ax.plot([p[0] for p in pts], [p[1] for p in pts], style, label=f"ovrad {label}")
+    if cyc:
+        ax.plot(
+            [r["seconds"] for r in cyc],
+            [r["error"] / 3 for r in cyc],
+            color="grey",
+            ls="--",
+            lw=0.8,
+            label="goal: 1/3 of Cycles' error",
+        )
     if np.isfinite(noise):
         ax.axhline(noise, color="grey", lw=0.8, ls=":", label=f"reference noise ({noise:.3f})")
     ax.set_xscale("log")

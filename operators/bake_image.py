@@ -73,16 +73,17 @@ def uv_triangles(obj, depsgraph, uv_map: str) -> tuple[np.ndarray, np.ndarray]:
     return uv.reshape(-1, 2)[loops].reshape(-1, 3, 2).astype(np.float64), world[verts].reshape(-1, 3, 3)
 
 
-def bake_values(problem, radiosity, texels, quantity: str) -> np.ndarray:
+def bake_values(problem, radiosity, texels, quantity: str, first_shot=None, light=None) -> np.ndarray:
     """Radiance (or irradiance / pi) (k, 3) at texel points, seen from the front side where patches
-    cover it, else from the back (an open mesh whose patches are only on its back)."""
+    cover it, else from the back (an open mesh whose patches are only on its back); direct light
+    computed at the texels when the solve's first shot and light are given."""
     fn = irradiance_at if quantity == "IRRADIANCE" else radiance_at
     out = np.zeros((len(texels), 3))
     for s in range(0, len(texels), _CHUNK):
         sl = slice(s, s + _CHUNK)
         pts, tri = texels.points[sl], texels.triangle[sl]
         front = alpha_at(problem.atlas, problem.index, pts, tri, 1).getnnz(axis=1) > 0
-        out[sl] = fn(problem, radiosity, pts, tri, np.where(front, 1, -1))
+        out[sl] = fn(problem, radiosity, pts, tri, np.where(front, 1, -1), first_shot, light)
     # Smooth beta rings slightly below 0 next to contact shadows; light is never negative.
     return np.maximum(out, 0.0)
 
@@ -228,7 +229,9 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
                 texels = bake.rasterize(uv, world, ids, self.size, self.size, inset=INSET)
                 if len(texels) == 0:
                     raise OvradError(f"the UV map of '{obj.name}' covers no texel centre at {self.size} px")
-                values = bake_values(problem, radiosity, texels, self.quantity)
+                values = bake_values(
+                    problem, radiosity, texels, self.quantity, solution.first_shot, solution.light
+                )
                 img, mask = bake.to_image(texels, values, self.size, self.size)
                 img, mask = bake.dilate(img, mask, self.margin)
                 img[..., 3] = mask

@@ -112,7 +112,9 @@ class ReceiverBake:
         out = np.empty((len(pts), 3))
         for s in range(0, len(pts), CHUNK):
             sl = slice(s, s + CHUNK)
-            out[sl] = fn(problem, solution.radiosity, pts[sl], tris[sl], sides[sl])
+            out[sl] = fn(
+                problem, solution.radiosity, pts[sl], tris[sl], sides[sl], solution.first_shot, solution.light
+            )
         # Smooth beta rings slightly below 0 next to contact shadows; light is never negative.
         return np.maximum(out, 0.0).reshape(-1, 3, 3)
 

@@ -4,7 +4,7 @@ frozen settings (AtlasSettings, SolveSettings)."""
 from __future__ import annotations
 
 import bpy
-from bpy.props import EnumProperty, FloatProperty, IntProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
 from ..ovrad_addon.pipeline import SolveSettings
 from ..ovrad_addon.settings import AtlasSettings, ObjectSettings
@@ -122,6 +122,15 @@ class OVRAD_PG_settings(bpy.types.PropertyGroup):
         min=1,
         max=4096,
         soft_max=1024,
+    )
+    bake_direct: BoolProperty(
+        name="Sharp Direct Light",
+        description=(
+            "Compute the direct light of lamps and small emitters at every baked vertex or texel "
+            "(shadow rays), and take only the indirect light from the patches: sharp shadows and "
+            "fall-off. Off: everything from the patches, as the paper reconstructs it"
+        ),
+        default=True,
     )
     bake_target: EnumProperty(
         name="Bake To",

@@ -20,9 +20,10 @@ import numpy as np
 
 from ..ovrad_addon import names
 from ..ovrad_addon.atlas import Atlas, index_surfaces
+from ..ovrad_addon.direct import DirectLight
 from ..ovrad_addon.errors import OvradError
 from ..ovrad_addon.lights import Lamp
-from ..ovrad_addon.pipeline import Problem, SolveSettings, attach_sheets, prepare, solve
+from ..ovrad_addon.pipeline import Problem, SolveSettings, attach_sheets, direct_light, prepare, solve
 from ..ovrad_addon.settings import AtlasSettings, ObjectSettings
 from ..ovrad_addon.surfaces import Surfaces
 from . import attributes, display, properties, scene_io
@@ -114,6 +115,14 @@ def fingerprint(surfaces: Surfaces, atlas: Atlas) -> str:
         h.update(f"{a.dtype.str}{a.shape}".encode())
         h.update(a.tobytes())
     h.update(atlas.beta.encode())
+    return h.hexdigest()
+
+
+def light_key(surfaces: Surfaces, lamps) -> str:
+    """What direct light depends on besides geometry: the lamps and every triangle's emission."""
+    h = hashlib.blake2b(digest_size=20)
+    h.update(repr(tuple(lamps)).encode())
+    h.update(np.ascontiguousarray(surfaces.emission).tobytes())
     return h.hexdigest()
 
 
@@ -219,13 +228,16 @@ class Solution:
     problem: surfaces, index and atlas with sheets (C and transport may be None); radiosity
     (n, 3) B per patch, read back from the atlas objects; receivers: the source mesh objects,
     receiver i's triangles start at first_triangle[i] in problem.surfaces.triangles, in the
-    order of its evaluated mesh's loop_triangles.
+    order of its evaluated mesh's loop_triangles. first_shot (n, 3) and light: the solve's direct
+    light, which bakes compute at their own points (None: everything from the patches).
     """
 
     problem: Problem
     radiosity: np.ndarray
     receivers: list
     first_triangle: list[int]
+    first_shot: np.ndarray | None = None
+    light: DirectLight | None = None
 
 
 def load_solution(context) -> Solution:
@@ -240,7 +252,28 @@ def load_solution(context) -> Solution:
     radiosity = np.pi * np.concatenate(parts).astype(np.float64)
     problem = cached_problem(inputs) or locate(inputs.surfaces, inputs.atlas)
     firsts = [inputs.first_triangle(i) for i in range(len(inputs.sources))]
-    return Solution(problem, radiosity, inputs.sources, firsts)
+    first_shot, light = None, None
+    if context.scene.ovrad.bake_direct:
+        first_shot, light = _stored_direct(inputs, problem)
+    return Solution(problem, radiosity, inputs.sources, firsts, first_shot, light)
+
+
+def _stored_direct(inputs: SolveInputs, problem: Problem) -> tuple[np.ndarray | None, DirectLight | None]:
+    """The first shot stored by the last solve and the direct light to compute at bake points;
+    raises OvradError when the lamps or emission changed since (the split would not match)."""
+    parts, key = [], light_key(inputs.surfaces, inputs.lamps)
+    for name, count in zip(inputs.atlas_names, inputs.counts, strict=True):
+        obj = bpy.data.objects[name]
+        if names.DIRECT not in obj.data.attributes:
+            return None, None  # solved by an older version: reconstruct everything from the patches
+        if obj.get(names.PROP_LIGHT_KEY) != key:
+            raise OvradError(
+                "the lamps or emissive materials changed since the last solve: press Solve again "
+                "before baking"
+            )
+        parts.append(attributes.read_point_attribute(obj.data, names.DIRECT)[:count, :3])
+    first_shot = np.pi * np.concatenate(parts).astype(np.float64)
+    return first_shot, direct_light(problem, inputs.lamps, inputs.settings)
 
 
 # --------------------------------------------------------------------------- the job (no bpy)
@@ -426,16 +459,15 @@ def save_state(scene, atlas_names: list[str]) -> SavedState:
     for name in atlas_names:
         obj = bpy.data.objects[name]
         mesh = obj.data
-        old = (
-            attributes.read_point_attribute(mesh, names.RADIOSITY)
-            if names.RADIOSITY in mesh.attributes
-            else None
-        )
+        old = {
+            attr: attributes.read_point_attribute(mesh, attr) if attr in mesh.attributes else None
+            for attr in (names.RADIOSITY, names.DIRECT)
+        }
         mod = obj.modifiers.get(names.DISPLAY_MODIFIER)
         q = None
         if mod is not None and mod.node_group is not None:
             q = mod.get(display.input_identifier(mod.node_group, "Quantity"))
-        saved[name] = (old, None if q is None else int(q))
+        saved[name] = (old, None if q is None else int(q), obj.get(names.PROP_LIGHT_KEY))
     return SavedState(scene.ovrad.display_quantity, saved)
 
 
@@ -443,36 +475,49 @@ def restore_state(scene, saved: SavedState) -> None:
     """Put back what save_state() saw (a cancelled or failed solve leaves the scene as before)."""
     if scene.ovrad.display_quantity != saved.quantity:
         scene.ovrad.display_quantity = saved.quantity
-    for name, (old, quantity) in saved.objects.items():
+    for name, (old, quantity, key) in saved.objects.items():
         obj = bpy.data.objects.get(name)
         if obj is None or not attributes.is_atlas(obj):
             continue
         mesh = obj.data
-        if old is None:
-            attr = mesh.attributes.get(names.RADIOSITY)
-            if attr is not None:
-                mesh.attributes.remove(attr)
-        elif len(old) == len(mesh.vertices):
-            attributes.write_point_attribute(mesh, names.RADIOSITY, old, "FLOAT_COLOR")
+        for attr_name, values in old.items():
+            if values is None:
+                attr = mesh.attributes.get(attr_name)
+                if attr is not None:
+                    mesh.attributes.remove(attr)
+            elif len(values) == len(mesh.vertices):
+                attributes.write_point_attribute(mesh, attr_name, values, "FLOAT_COLOR")
+        if key is None:
+            obj.pop(names.PROP_LIGHT_KEY, None)
+        elif obj.get(names.PROP_LIGHT_KEY) != key:
+            obj[names.PROP_LIGHT_KEY] = key
         if quantity is not None:
             display.set_input(obj, "Quantity", quantity)
         mesh.update()
 
 
-def write_radiosity(scene, inputs: SolveInputs, radiosity: np.ndarray) -> list[str]:
-    """Radiance B/pi (FLOAT_COLOR, alpha 1) on each atlas object, shown by the display; returns
-    the names of atlas objects that changed under the solve (skipped)."""
+def write_radiosity(
+    scene, inputs: SolveInputs, radiosity: np.ndarray, first_shot: np.ndarray | None = None
+) -> list[str]:
+    """Radiance B/pi (FLOAT_COLOR, alpha 1) on each atlas object, shown by the display, and the
+    first shot's share of it (direct light, for bakes) with the key of the light it came from;
+    returns the names of atlas objects that changed under the solve (skipped)."""
     skipped = []
     radiance = np.asarray(radiosity, np.float64) / np.pi
+    direct = np.zeros_like(radiance) if first_shot is None else np.asarray(first_shot, np.float64) / np.pi
+    key = light_key(inputs.surfaces, inputs.lamps)
     start = 0
     for name, count in zip(inputs.atlas_names, inputs.counts, strict=True):
         part = radiance[start : start + count]
+        part_direct = direct[start : start + count]
         start += count
         obj = bpy.data.objects.get(name)
         if obj is None or not attributes.is_atlas(obj) or attributes.patch_count(obj) != count:
             skipped.append(name)
             continue
         attributes.write_point_attribute(obj.data, names.RADIOSITY, part, "FLOAT_COLOR")
+        attributes.write_point_attribute(obj.data, names.DIRECT, part_direct, "FLOAT_COLOR")
+        obj[names.PROP_LIGHT_KEY] = key
         obj.data.update()
         display.set_quantity(obj, "RADIOSITY")
     if scene.ovrad.display_quantity != "RADIOSITY":
@@ -506,7 +551,7 @@ def finish(scene, job: SolveJob, saved: SavedState | None) -> tuple[str, str]:
         if saved is not None:
             restore_state(scene, saved)
         return "CANCELLED", "ovrad: solve cancelled; the scene is as it was"
-    skipped = write_radiosity(scene, job.inputs, job.state.radiosity)
+    skipped = write_radiosity(scene, job.inputs, job.state.radiosity, job.state.first_shot)
     message = summary(job)
     if skipped:
         message += f" (changed during the solve, not written: {', '.join(skipped)})"

@@ -364,9 +364,12 @@ def build_atlas(
     )
     if np.any(support <= 0):
         # Patches with no support on their sheet: a face lying on another (a box's bottom on
-        # the floor) is hidden by it, and light can never reach it. Drop them, integrate again.
+        # the floor) is hidden by it, and light can never reach it. Drop them. No surface point
+        # is in such a patch, so it is in no other patch's integral: C loses its rows and columns.
+        keep = np.flatnonzero(support > 0)
         atlas = atlas.select(support > 0)
-        C, support = overlap_matrix(atlas, index, settings.quadrature)
+        C = C.tocsr()[keep][:, keep]
+        support = support[keep]
     nz = (C + C.T).tocsr()
     nz.data[:] = 1
     counts = np.diff(nz.indptr) - (C.diagonal() > 0)

@@ -98,6 +98,13 @@ def area_samples(lamp: Lamp, per_side: int = 8) -> tuple[np.ndarray, np.ndarray]
     return p + u[:, None] * t + v[:, None] * b, w
 
 
+def shadow_origin(points: np.ndarray, normals: np.ndarray, directions: np.ndarray, eps: float) -> np.ndarray:
+    """Where a shadow ray from surface points starts: off the surface along the normal and along
+    the ray. A point on a concave edge (a wall's foot) lies in the neighbouring face's plane too;
+    stepping along the normal alone would leave it there and the ray would hit that face at t = 0."""
+    return points + eps * normals + 2.0 * eps * directions
+
+
 def lamp_irradiance(
     lamps, points: np.ndarray, normals: np.ndarray, rays, extent: float
 ) -> tuple[np.ndarray, int]:
@@ -115,7 +122,9 @@ def lamp_irradiance(
             to_light = np.broadcast_to(-axis, pts.shape)
             cos = np.einsum("ij,ij->i", nrm, to_light)
             lit = cos > 0
-            blocked = rays.occluded(pts[lit] + eps * nrm[lit], to_light[lit], np.inf)
+            blocked = rays.occluded(
+                shadow_origin(pts[lit], nrm[lit], to_light[lit], eps), to_light[lit], np.inf
+            )
             cast += int(lit.sum())
             e = np.zeros(len(pts))
             e[np.flatnonzero(lit)[~blocked]] = lamp.power * cos[lit][~blocked]
@@ -142,7 +151,8 @@ def lamp_irradiance(
                     )
             lit = (cos > 0) & (intensity > 0)
             idx = np.flatnonzero(lit)
-            blocked = rays.occluded(pts[idx] + eps * nrm[idx], omega[idx], d[idx] * (1 - 1e-6) - eps)
+            origin = shadow_origin(pts[idx], nrm[idx], omega[idx], eps)
+            blocked = rays.occluded(origin, omega[idx], d[idx] * (1 - 1e-6) - 3 * eps)
             cast += len(idx)
             e = np.zeros(len(pts))
             keep = idx[~blocked]

@@ -12,12 +12,14 @@ THICKNESS = "ovrad_thickness"  # FLOAT, tolerated distance from the patch plane
 MIN_COS = "ovrad_min_cos"  # FLOAT, least cosine between patch and surface normals
 SUPPORT_AREA = "ovrad_support_area"  # FLOAT, area A_h of the patch's support on the surface
 RANDOM = "ovrad_random"  # FLOAT in [0, 1), a stable random value per patch (display)
-RADIOSITY = "ovrad_radiosity"  # FLOAT_COLOR, solved radiance B/pi (later issues)
+RADIOSITY = "ovrad_radiosity"  # FLOAT_COLOR, solved radiance B/pi
+DIRECT = "ovrad_direct"  # FLOAT_COLOR, the first shot's share of it (direct light of lamps and emitters)
 
 # Custom properties on the atlas object.
 PROP_SOURCE = "ovrad_source"  # name of the source mesh object
 PROP_BETA = "ovrad_beta"  # beta profile the atlas was built with ("box" or "smooth")
 PROP_VERSION = "ovrad_atlas_version"
+PROP_LIGHT_KEY = "ovrad_light_key"  # hash of the lamps and emission the stored solve used
 
 COLLECTION = "ovrad"
 DISPLAY_NODE_GROUP = "ovrad_patch_display"

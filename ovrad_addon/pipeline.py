@@ -14,6 +14,7 @@ import numpy as np
 from scipy.sparse import csc_matrix, diags
 
 from .atlas import Atlas, SurfaceIndex, index_surfaces
+from .direct import DirectLight, direct_irradiance, emitter_irradiance, triangle_normals
 from .errors import OvradError
 from .lights import Lamp, lamp_irradiance
 from .overlap import alpha_at, overlap_matrix, patch_average, patch_quadrature, reconstruct
@@ -31,6 +32,7 @@ class SolveSettings:
     """tolerance: stop when unshot power < tolerance x emitted power; rule: "exact" (eq. 9) or
     "paper" (the published update); rays_per_point: hemisphere rays per receiver point;
     batch: shooters per step; light_samples: emitter samples per receiver point (direct light);
+    bake_samples: emitter samples per bake point (direct light at vertices and texels);
     smoothing: weight of the overlap-graph Laplacian added to C when solving (see regularised()),
     0 solves equation (9) exactly."""
 
@@ -40,6 +42,7 @@ class SolveSettings:
     batch: int = 64
     light_samples: int = 16
     smoothing: float = 0.1
+    bake_samples: int = 64
 
     def __post_init__(self) -> None:
         if not (0 < self.tolerance < 1):
@@ -50,6 +53,8 @@ class SolveSettings:
             raise OvradError(f"smoothing must be in [0, 10], got {self.smoothing}")
         if not (1 <= self.rays_per_point <= 4096) or not (1 <= self.light_samples <= 1024):
             raise OvradError("rays_per_point must be in [1, 4096] and light_samples in [1, 1024]")
+        if not (1 <= self.bake_samples <= 4096):
+            raise OvradError(f"bake_samples must be in [1, 4096], got {self.bake_samples}")
 
 
 @dataclass
@@ -177,54 +182,31 @@ def patch_emission(problem: Problem, emission_scale: float = 1.0) -> np.ndarray:
     )
 
 
-def _emitter_direct(problem: Problem, E: np.ndarray, samples: int, seed: int = 1) -> tuple[np.ndarray, int]:
-    """Irradiance (m, 3) at every receiver point straight from emissive patches (next-event
-    estimation: `samples` stratified picks among the emitters' points, one shadow ray each),
-    and the rays cast. An emitter point of patch k carries its basis share alpha_k E_k / pi."""
-    atlas, index, rp = problem.atlas, problem.index, problem.transport.points
-    m = len(rp.owner)
-    H = np.zeros((m, 3))
-    src_patch = np.flatnonzero(np.abs(E).sum(axis=1) > 0)
-    if len(src_patch) == 0:
-        return H, 0
-    sel = np.flatnonzero(np.isin(rp.owner, src_patch))
-    a = alpha_at(atlas, index, rp.points[sel], rp.triangle[sel], index.sheet_side[atlas.sheet[rp.owner[sel]]])
-    own = np.asarray(a[np.arange(len(sel)), rp.owner[sel]]).ravel()
-    radiance = own[:, None] * E[rp.owner[sel]] / np.pi
-    power = rp.weight[sel] * radiance.sum(axis=1)
-    keep = power > 0
-    sel, radiance, power = sel[keep], radiance[keep], power[keep]
-    if len(sel) == 0:
-        return H, 0
-    total = power.sum()
-    cdf = np.cumsum(power) / total
-    rng = np.random.default_rng(seed)
-    eps = 1e-6 * problem.surfaces.extent
-    cast = 0
-    step = max(1, (1 << 20) // samples)
-    for r0 in range(0, m, step):
-        rs = np.arange(r0, min(m, r0 + step))
-        pts, nrm = rp.points[rs], rp.normals[rs]
-        u = (np.arange(samples)[None, :] + rng.random((len(rs), 1))) / samples  # stratified
-        j = np.minimum(np.searchsorted(cdf, u), len(sel) - 1)  # (r, S) into sel
-        src = sel[j]
-        v = rp.points[src] - pts[:, None]
-        d2 = np.einsum("rsk,rsk->rs", v, v)
-        d = np.sqrt(np.maximum(d2, 1e-300))
-        omega = v / d[..., None]
-        cos_r = np.einsum("rsk,rk->rs", omega, nrm)
-        cos_s = -np.einsum("rsk,rsk->rs", omega, rp.normals[src])
-        r_i, s_i = np.nonzero((cos_r > 0) & (cos_s > 0))
-        blocked = index.rays.occluded(
-            pts[r_i] + eps * nrm[r_i], omega[r_i, s_i], d[r_i, s_i] * (1 - 1e-6) - 2 * eps
-        )
-        cast += len(r_i)
-        r_i, s_i = r_i[~blocked], s_i[~blocked]
-        jj = j[r_i, s_i]
-        pdf = power[jj] / total
-        g = rp.weight[sel[jj]] * cos_r[r_i, s_i] * cos_s[r_i, s_i] / d2[r_i, s_i] / (pdf * samples)
-        np.add.at(H, rs[r_i], g[:, None] * radiance[jj])
-    return H, cast
+def sampled_emitters(problem: Problem, emission_scale: float = 1.0) -> np.ndarray:
+    """(T,) bool: the emitting triangles whose light is shot with shadow rays (the first shot).
+
+    Small bright emitters (a light fixture) are: hemisphere rays would find them too rarely.
+    Large emitters (a glowing wall, a furnace) are left to the rays, whose sums close exactly,
+    where sampling them point to point would meet 1/d^2 near fields.
+    """
+    atlas = problem.atlas
+    E = patch_emission(problem, emission_scale)
+    emitting = np.abs(E).sum(axis=1) > 0
+    small = atlas.effective_area[emitting].sum() <= NEE_AREA_FRACTION * atlas.effective_area.sum()
+    on = problem.surfaces.emission.sum(axis=1) > 0
+    return on if small and emission_scale > 0 else np.zeros_like(on)
+
+
+def direct_light(
+    problem: Problem,
+    lamps: tuple[Lamp, ...] = (),
+    settings: SolveSettings = SolveSettings(),
+    emission_scale: float = 1.0,
+) -> DirectLight:
+    """The light a solve shoots first, as bake points compute it for themselves."""
+    return DirectLight(
+        tuple(lamps), sampled_emitters(problem, emission_scale), emission_scale, settings.bake_samples
+    )
 
 
 def solve(
@@ -250,12 +232,17 @@ def solve(
         H, lamp_rays = lamp_irradiance(
             lamps, rp.points, rp.normals, problem.index.rays, problem.surfaces.extent
         )
-        # Small bright emitters (a light fixture) are shot with shadow rays: hemisphere rays would
-        # find them too rarely. Large emitters (a glowing wall, a furnace) are left to the rays,
-        # whose sums close exactly, where sampling them point to point would meet 1/d^2 near fields.
-        emitting = np.abs(E).sum(axis=1) > 0
-        small = atlas.effective_area[emitting].sum() <= NEE_AREA_FRACTION * atlas.effective_area.sum()
-        direct, emit_rays = _emitter_direct(problem, E, settings.light_samples) if small else (0.0, 0)
+        emitters = sampled_emitters(problem, emission_scale)
+        small = bool(np.any(emitters))
+        direct, emit_rays = emitter_irradiance(
+            problem.surfaces,
+            problem.index.rays,
+            emitters,
+            rp.points,
+            rp.normals,
+            settings.light_samples,
+            emission_scale,
+        )
         received = T.test(H + direct, problem.surfaces.reflectance[rp.triangle])
         if not np.any(received > 0) and not np.any(E > 0):
             raise OvradError("no light: nothing in the scene emits (add a lamp or an emissive material)")
@@ -265,7 +252,9 @@ def solve(
             A = atlas.support_area
             dB = (problem.C.T @ (received / A[:, None])) / A[:, None]
         unshot = dB if small else dB + E
-        state = SolveState(radiosity=E + dB, unshot=unshot, rays=problem.rays + lamp_rays + emit_rays)
+        state = SolveState(
+            radiosity=E + dB, unshot=unshot, rays=problem.rays + lamp_rays + emit_rays, first_shot=dB
+        )
         if not np.any(np.abs(state.unshot) > 0):
             state.converged = True
             return state
@@ -283,20 +272,71 @@ def solve(
     )
 
 
-def radiance_at(problem: Problem, radiosity: np.ndarray, points, triangles, sides=1) -> np.ndarray:
-    """Outgoing radiance L = B / pi (m, 3) reconstructed at surface points; 0 where no patch covers."""
+def _direct_at(problem: Problem, light: DirectLight, points, tri, sides) -> np.ndarray:
+    """Direct irradiance (m, 3) at surface points, on the given side of their triangles."""
+    normals = triangle_normals(problem.surfaces, tri) * np.broadcast_to(np.asarray(sides), tri.shape)[:, None]
+    return direct_irradiance(problem.surfaces, problem.index.rays, light, points, normals)[0]
+
+
+def _split(problem: Problem, radiosity: np.ndarray, first_shot, light) -> tuple[np.ndarray, bool]:
+    """The radiosity the patches reconstruct, and whether direct light is added at the points."""
+    if first_shot is None or light is None:
+        return radiosity, False
+    if first_shot.shape != radiosity.shape:
+        raise OvradError("the first shot does not match the radiosity: solve again")
+    return radiosity - first_shot, True
+
+
+def radiance_at(
+    problem: Problem,
+    radiosity: np.ndarray,
+    points,
+    triangles,
+    sides=1,
+    first_shot: np.ndarray | None = None,
+    light: DirectLight | None = None,
+) -> np.ndarray:
+    """Outgoing radiance L = B / pi (m, 3) reconstructed at surface points; 0 where no patch covers.
+
+    With the solve's first shot and its direct light, the points get their direct light computed
+    where they are (shadow rays) and only the rest of the radiosity from the patches.
+    """
     tri = np.asarray(triangles, np.int64)
-    a = alpha_at(problem.atlas, problem.index, points, tri, np.broadcast_to(np.asarray(sides), tri.shape))
-    return reconstruct(a, radiosity) / np.pi
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    side = np.broadcast_to(np.asarray(sides), tri.shape)
+    a = alpha_at(problem.atlas, problem.index, pts, tri, side)
+    coeffs, split = _split(problem, radiosity, first_shot, light)
+    out = reconstruct(a, coeffs)
+    if split:
+        covered = np.asarray(a.sum(axis=1)).ravel() > 0
+        H = _direct_at(problem, light, pts, tri, side)
+        out += np.where(covered[:, None], problem.surfaces.reflectance[tri] * H, 0.0)
+    return out / np.pi
 
 
-def irradiance_at(problem: Problem, radiosity: np.ndarray, points, triangles, sides=1) -> np.ndarray:
+def irradiance_at(
+    problem: Problem,
+    radiosity: np.ndarray,
+    points,
+    triangles,
+    sides=1,
+    first_shot: np.ndarray | None = None,
+    light: DirectLight | None = None,
+) -> np.ndarray:
     """Light arriving at surface points without the surface's albedo: H / pi (m, 3), in the units
-    of radiance (a white surface's radiance), from B(M) - E(M) = rho(M) H(M); 0 where rho is 0."""
+    of radiance (a white surface's radiance), from B(M) - E(M) = rho(M) H(M); 0 where rho is 0
+    (direct light at the points where it is split off, as in radiance_at)."""
     tri = np.asarray(triangles, np.int64)
-    a = alpha_at(problem.atlas, problem.index, points, tri, np.broadcast_to(np.asarray(sides), tri.shape))
-    E = patch_emission(problem)
-    reflected = reconstruct(a, radiosity - E)
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    side = np.broadcast_to(np.asarray(sides), tri.shape)
+    a = alpha_at(problem.atlas, problem.index, pts, tri, side)
+    E = patch_emission(problem, light.emission_scale if light is not None else 1.0)
+    coeffs, split = _split(problem, radiosity, first_shot, light)
+    reflected = reconstruct(a, coeffs - E)
     rho = problem.surfaces.reflectance[tri]
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(rho > 0, reflected / rho, 0.0) / np.pi
+        out = np.where(rho > 0, reflected / rho, 0.0)
+    if split:
+        covered = np.asarray(a.sum(axis=1)).ravel() > 0
+        out += np.where(covered[:, None], _direct_at(problem, light, pts, tri, side), 0.0)
+    return out / np.pi

@@ -40,6 +40,9 @@ class SolveState:
     converged: bool = False
     history: list = field(default_factory=list)
     method: str = "shooting"
+    # The first shot's share of radiosity (n, 3): the direct light of lamps and sampled emitters
+    # as the patches hold it; bake points replace it by direct light computed where they are.
+    first_shot: np.ndarray | None = None
 
 
 Progress = Callable[[float, float, float, int], bool] | None

@@ -76,6 +76,16 @@ OPTIONS = [
     ("solve", "--tolerance", dict(type=float, help="stop when unshot light < this fraction of the emitted")),
     ("solve", "--rays-per-point", dict(type=int, help="hemisphere rays per surface sample (form factors)")),
     ("bake", "--target", dict(choices=("vertex", "image"), default="vertex")),
+    (
+        "bake",
+        "--direct",
+        dict(
+            choices=("points", "patches"),
+            default="points",
+            help="direct light of lamps and small emitters computed at every baked point (sharp), "
+            "or reconstructed from the patches like the rest (the paper's reconstruction)",
+        ),
+    ),
     ("bake", "--quantity", dict(choices=("radiance", "irradiance"), default="radiance")),
     ("bake", "--attribute", dict(default="ovrad_radiance", help="vertex: colour attribute name")),
     ("bake", "--domain", dict(choices=("POINT", "CORNER"), default="POINT", help="vertex: attribute domain")),
@@ -179,6 +189,7 @@ def apply_settings(props, args) -> None:
             setattr(props, prop, getattr(args, opt))
     props.bake_target, props.bake_quantity = args.target.upper(), args.quantity.upper()
     props.bake_attribute, props.bake_domain = args.attribute, args.domain
+    props.bake_direct = args.direct == "points"
 
 
 def output_paths(args) -> tuple[str, str]:

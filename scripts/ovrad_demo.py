@@ -1,139 +1,103 @@
-"""The main job: generate the atlas of every receiving mesh in the open file, save it, render it."""
+"""The main job: bake the bundled Cornell box to vertex colours headless, render it, score it.
 
-# Usage: scripts/blender -b scenes/cornell.blend -P scripts/ovrad_demo.py -- \
-#            --output out/cornell_ovrad.blend --picture out/cornell_ovrad.png
-# Works with the extension installed (bl_ext.user_default.ovrad) or straight from a checkout.
+Usage: scripts/blender -b scenes/cornell.blend -P scripts/ovrad_demo.py -- \
+           --output out/cornell_ovrad.blend --picture out/cornell_ovrad.png [batch options]
+
+The receivers are subdivided first, as a user would for smooth vertex colours (the grid the
+stored Cycles reference was baked on), then scripts/ovrad_batch.py generates the atlas, solves
+and bakes. One line reports patches, wall time and the relative RMS error against the stored
+4 096-sample Cycles reference, beside what Cycles' own bake reached in benchmarks/results.
+Works with the extension installed or straight from a checkout.
+"""
 
 from __future__ import annotations
 
-import argparse
-import importlib
+import csv
 import importlib.util
-import os
 import sys
-import time
 from pathlib import Path
 
 import bpy
+import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-EXTENSION = "bl_ext.user_default.ovrad"
+sys.path.insert(0, str(ROOT / "benchmarks"))
+import make_reference  # noqa: E402  (benchmarks/ is not a package)
+
+import scenes  # noqa: E402
+
+REFERENCE = ROOT / "benchmarks" / "reference" / "cornell_4096.npz"
+CYCLES_RESULTS = ROOT / "benchmarks" / "results" / "speed_vs_error.csv"
+DEFAULTS = ["--patch-count", "1500", "--beta", "box"]
 
 
-def enable_ovrad():
-    """The ovrad module, registered: the installed extension if there is one, else this checkout."""
-    if hasattr(bpy.types, "OVRAD_OT_generate_atlas"):
-        return sys.modules.get(EXTENSION) or sys.modules.get("ovrad")
-    try:
-        found = importlib.util.find_spec(EXTENSION) is not None
-    except ModuleNotFoundError:  # no bl_ext package at all
-        found = False
-    if found:
-        import addon_utils
-
-        module = addon_utils.enable(EXTENSION, default_set=False)
-        if module is not None and hasattr(bpy.types, "OVRAD_OT_generate_atlas"):
-            return module
-    # A checkout: load the repository root as the package "ovrad" (the engine is imported relatively).
-    spec = importlib.util.spec_from_file_location(
-        "ovrad", ROOT / "__init__.py", submodule_search_locations=[str(ROOT)]
-    )
+def batch_module():
+    spec = importlib.util.spec_from_file_location("ovrad_batch", ROOT / "scripts" / "ovrad_batch.py")
     module = importlib.util.module_from_spec(spec)
-    sys.modules["ovrad"] = module
     spec.loader.exec_module(module)
-    module.register()
     return module
 
 
-def parse(argv: list[str]) -> argparse.Namespace:
-    args = argv[argv.index("--") + 1 :] if "--" in argv else []
-    p = argparse.ArgumentParser(prog="ovrad_demo.py", description=__doc__)
-    p.add_argument(
-        "--output", required=True, help="where to save the .blend with the atlas (never the input file)"
-    )
-    p.add_argument("--picture", help="render a PNG of the atlas coloured by the display quantity")
-    p.add_argument("--patch-count", type=int, help="target patch count (default: the file's setting)")
-    p.add_argument("--beta", choices=("box", "smooth"), help="beta profile (default: the file's setting)")
-    p.add_argument(
-        "--display", default="OVERLAP", choices=("OVERLAP", "RANDOM", "BETA"), help="what to colour by"
-    )
-    p.add_argument("--samples", type=int, default=16, help="Cycles samples for the picture")
-    p.add_argument("--resolution", type=int, default=384, help="picture width and height in pixels")
-    return p.parse_args(args)
+def baked(objects, name: str) -> np.ndarray:
+    """(V, 3) values of the POINT colour attribute `name` over the objects, in order."""
+    out = []
+    for obj in objects:
+        attr = obj.data.color_attributes[name]
+        a = np.empty(len(attr.data) * 4, np.float32)
+        attr.data.foreach_get("color", a)
+        out.append(a.reshape(-1, 4)[:, :3])
+    return np.concatenate(out).astype(np.float64)
 
 
-def receivers() -> list:
-    """Every mesh that renders, except atlas objects."""
-    return [
-        o
-        for o in bpy.context.view_layer.objects
-        if o.type == "MESH" and "ovrad_source" not in o and not o.hide_render and o.visible_get()
-    ]
-
-
-def render(path: str, atlas_objects: list, samples: int, resolution: int) -> float:
-    """Render only the atlas objects (their display is emissive), with Cycles on the CPU."""
-    scene = bpy.context.scene
-    if scene.camera is None:
-        raise SystemExit("ovrad_demo: the scene has no camera to render the picture from")
-    for obj in scene.objects:
-        obj.hide_render = obj not in atlas_objects and obj.type == "MESH"
-    scene.render.engine = "CYCLES"
-    scene.cycles.device = "CPU"
-    scene.cycles.samples = samples
-    scene.cycles.use_adaptive_sampling = False
-    scene.cycles.use_denoising = False
-    scene.cycles.max_bounces = 0  # the patches emit their colour: nothing to bounce
-    scene.render.resolution_x = scene.render.resolution_y = resolution
-    scene.render.resolution_percentage = 100
-    # Standard, not AgX/Filmic: the display's colours are meant to be read as they are.
-    scene.view_settings.view_transform = "Standard"
-    scene.view_settings.look = "None"
-    scene.render.image_settings.file_format = "PNG"
-    scene.render.filepath = os.path.abspath(path)
-    start = time.perf_counter()
-    bpy.ops.render.render(write_still=True)
-    return time.perf_counter() - start
+def cycles_at(seconds: float) -> str:
+    """What Cycles' DIFFUSE bake reached in the stored benchmark, for comparison."""
+    if not CYCLES_RESULTS.is_file():
+        return ""
+    with open(CYCLES_RESULTS, newline="") as fh:
+        rows = sorted(
+            (float(r["seconds"]), float(r["error"]), r["samples"])
+            for r in csv.DictReader(fh)
+            if r["method"] == "cycles"
+        )
+    if not rows:
+        return ""
+    t, e, spp = min(rows, key=lambda r: abs(np.log(r[0] / seconds)))
+    return f"; Cycles in benchmarks/results: {e:.3f} at {spp} spp ({t:.1f} s)"
 
 
 def main() -> int:
-    args = parse(sys.argv)
-    output = os.path.abspath(args.output)
-    if bpy.data.filepath and os.path.realpath(output) == os.path.realpath(bpy.data.filepath):
-        print(f"ovrad_demo: refusing to overwrite the input file {bpy.data.filepath}", file=sys.stderr)
-        return 2
-    module = enable_ovrad()
-    print(f"ovrad_demo: using {getattr(module, '__name__', 'ovrad')} from {os.path.dirname(module.__file__)}")
-    scene = bpy.context.scene
-    if args.patch_count:
-        scene.ovrad.patch_count = args.patch_count
-        scene.ovrad.size_mode = "COUNT"
-    if args.beta:
-        scene.ovrad.beta = args.beta
-    scene.ovrad.display_quantity = args.display
-    sources = receivers()
-    for obj in bpy.context.view_layer.objects:
-        obj.select_set(obj in sources)
-    bpy.context.view_layer.objects.active = sources[0] if sources else None
-    start = time.perf_counter()
+    argv = sys.argv[sys.argv.index("--") + 1 :] if "--" in sys.argv else []
+    batch = batch_module()
     try:
-        bpy.ops.ovrad.generate_atlas()
-    except RuntimeError as e:  # the operator's error report (no mesh, too many patches, ...)
-        print(f"ovrad_demo: {e}".strip(), file=sys.stderr)
+        args = batch.parse(DEFAULTS + argv)
+        ref = make_reference.load(REFERENCE)
+        scene = bpy.context.scene
+        for obj in list(scene.objects):
+            if obj.type == "MESH" and obj.name != scenes.EMITTER:
+                scenes.subdivide(obj, ref["meta"]["spacing_m"])
+        scored_objects = scenes.receivers(scene)
+        table = scenes.vertex_table(scored_objects)
+        n = len(table["positions"])  # the reference lists the emitter's vertices after these
+        if n > len(ref["positions"]) or np.abs(table["positions"] - ref["positions"][:n]).max() > 1e-5:
+            raise batch.BatchError(
+                "the open file is not the bundled Cornell box: its reference does not apply"
+            )
+        report = batch.run(args)
+    except batch.BatchError as e:
+        print(f"ovrad demo: error: {e}", file=sys.stderr, flush=True)
         return 1
-    seconds = time.perf_counter() - start
-    atlases = [o for o in scene.objects if "ovrad_source" in o]
-    patches = sum(len(o.data.vertices) for o in atlases)
-    os.makedirs(os.path.dirname(output), exist_ok=True)
-    bpy.ops.wm.save_as_mainfile(filepath=output, copy=True)
-    rendered = ""
-    if args.picture:
-        os.makedirs(os.path.dirname(os.path.abspath(args.picture)), exist_ok=True)
-        took = render(args.picture, atlases, args.samples, args.resolution)
-        rendered = f", picture {took:.1f} s -> {args.picture}"
+    values = baked(scored_objects, args.attribute)
+    err = scenes.relative_rms(values, ref["radiance"][:n], ref["scored"][:n])
+    s = report["seconds"]
+    bake = s["generate"] + s["solve"] + s["bake"]
+    picture = f" and {args.picture}" if args.picture else ""
     print(
-        f"ovrad demo: {patches} patches on {len(atlases)} objects in {seconds:.2f} s "
-        f"(beta {scene.ovrad.beta}) -> {args.output}{rendered}"
+        f"ovrad demo ({report['ovrad']}): {report['patches']} patches ({report['beta']} beta), "
+        f"bake {bake:.2f} s "
+        f"(atlas {s['generate']:.2f}, solve {s['solve']:.2f}, vertex colours {s['bake']:.2f}); "
+        f"relative RMS error {err:.4f} against the Cycles 4096-spp reference over "
+        f"{int(ref['scored'][:n].sum())} vertices{cycles_at(bake)} -> {report['output']}{picture}",
+        flush=True,
     )
     return 0
 

@@ -86,6 +86,7 @@ def draw_bake(layout, props) -> None:
     col = layout.column(heading="Bake")
     col.prop(props, "bake_target")
     col.prop(props, "bake_quantity")
+    col.prop(props, "bake_direct")
     if props.bake_target == "VERTEX":
         col.prop(props, "bake_attribute")
         col.prop(props, "bake_domain")

@@ -89,7 +89,8 @@ def test_exr_read_back_equals_the_baked_image(scene, tmp_path):
 
 
 def floor_points(ovrad, points):
-    """The engine's own radiance at floor points (x, y, 0), from the stored solution."""
+    """The engine's own radiance at floor points (x, y, 0), from the stored solution (direct light
+    computed at the points, as the bake does by default)."""
     sol = ovrad.operators.solve.load_solution(bpy.context)
     s = sol.problem.surfaces
     k = [o.name for o in sol.receivers].index("Floor")
@@ -102,7 +103,7 @@ def floor_points(ovrad, points):
         tri[(tri < 0) & (wa >= 0) & (wb >= 0) & (wa + wb <= 1)] = t
     keep = tri >= 0
     return keep, ovrad.ovrad_addon.pipeline.radiance_at(
-        sol.problem, sol.radiosity, points[keep], tri[keep], 1
+        sol.problem, sol.radiosity, points[keep], tri[keep], 1, sol.first_shot, sol.light
     )
 
 
@@ -128,9 +129,10 @@ def test_image_matches_the_engine_and_the_cycles_reference_on_the_floor(ovrad, s
 
     # Texels are where their UVs say: the image is the engine's radiance, up to bilinear filtering.
     keep, direct = floor_points(ovrad, pos)
-    assert keep.mean() > 0.95 and rel(got[keep], direct) < 0.02
-    # And close to Cycles' converged bake (1000 patches over the whole box).
-    assert rel(got, want) < 0.15, rel(got, want)
+    # (measured 0.015: bilinear filtering of 128 texels across the blocks' sharp shadows)
+    assert keep.mean() > 0.95 and rel(got[keep], direct) < 0.02, rel(got[keep], direct)
+    # And close to Cycles' converged bake (1000 patches over the whole box; measured 0.030).
+    assert rel(got, want) < 0.05, rel(got, want)
 
 
 def test_default_path_is_next_to_the_blend_file(scene, solved):

@@ -13,7 +13,11 @@ pytestmark = pytest.mark.blender
 
 ROOT = Path(__file__).resolve().parents[2]
 CORNELL = ROOT / "scenes" / "cornell.blend"
-SMALL = ["--patch-count", "300", "--samples", "1", "--resolution", "48"]
+SMALL = ["--patch-count", "300", "--picture-samples", "1", "--picture-size", "48"]
+LINE = re.compile(
+    r"ovrad demo \(([\w.]+)\): (\d+) patches \(box beta\), bake [\d.]+ s .*"
+    r"relative RMS error ([\d.]+) against the Cycles 4096-spp reference over (\d+) vertices"
+)
 
 
 def demo(run_blender, out: Path, *extra: str, env=None):
@@ -22,22 +26,24 @@ def demo(run_blender, out: Path, *extra: str, env=None):
     return run_blender(args, env=env)
 
 
-def summary(stdout: str) -> tuple[int, int]:
-    m = re.search(r"ovrad demo: (\d+) patches on (\d+) objects in [\d.]+ s", stdout)
+def summary(stdout: str) -> tuple[str, int, float, int]:
+    m = LINE.search(stdout)
     assert m, stdout
-    return int(m.group(1)), int(m.group(2))
+    return m.group(1), int(m.group(2)), float(m.group(3)), int(m.group(4))
 
 
-def test_demo_saves_the_atlas_and_renders_a_picture(ovrad, run_blender, tmp_path):
+def test_demo_bakes_scores_against_the_reference_and_renders(ovrad, run_blender, tmp_path):
     before = CORNELL.stat().st_mtime_ns
     proc = demo(run_blender, tmp_path, *SMALL, "--picture", str(tmp_path / "c.png"))
     assert proc.returncode == 0, proc.stderr
-    assert "ovrad_demo: using bl_ext.user_default.ovrad from " in proc.stdout
-    patches, objects = summary(proc.stdout)
-    assert objects == 8 and 250 <= patches <= 400  # every mesh of the Cornell box, about the asked count
+    module, patches, error, vertices = summary(proc.stdout)
+    assert module == "bl_ext.user_default.ovrad"  # the installed extension did the work
+    assert 250 <= patches <= 400 and vertices > 8000
+    # 312 box patches with direct light at the vertices: measured 0.093; the same bake with all
+    # light from the patches (--direct patches) measured 0.136, so this bound tells the two apart
+    assert error < 0.11
     assert (tmp_path / "c.blend").is_file() and (tmp_path / "c.png").stat().st_size > 1000
     assert CORNELL.stat().st_mtime_ns == before
-    # The installed extension did the work (its atlas objects and display are in the saved file).
     check = run_blender(
         [
             "-b",
@@ -45,12 +51,11 @@ def test_demo_saves_the_atlas_and_renders_a_picture(ovrad, run_blender, tmp_path
             "--python-exit-code",
             "1",
             "--python-expr",
-            "import bpy; a = [o for o in bpy.data.objects if 'ovrad_source' in o]; "
-            "print('ATLAS', len(a), sum(len(o.data.vertices) for o in a), "
-            "all(o.modifiers.get('ovrad display') for o in a), [c.name for c in a[0].users_collection])",
+            "import bpy; m = [o for o in bpy.data.objects if o.type == 'MESH' and 'ovrad_source' not in o]; "
+            "print('BAKED', len(m), sum('ovrad_radiance' in o.data.color_attributes for o in m))",
         ]
     )
-    assert f"ATLAS 8 {patches} True ['ovrad']" in check.stdout, check.stdout + check.stderr
+    assert "BAKED 8 8" in check.stdout, check.stdout + check.stderr
 
 
 def test_demo_runs_from_a_checkout_without_the_extension(run_blender, tmp_path):
@@ -60,24 +65,15 @@ def test_demo_runs_from_a_checkout_without_the_extension(run_blender, tmp_path):
     env |= {var: str(user / sub) for var, sub in blender_env.USER_DIRS.items()}
     proc = demo(run_blender, tmp_path, *SMALL, env=env)
     assert proc.returncode == 0, proc.stderr
-    assert f"ovrad_demo: using ovrad from {ROOT}" in proc.stdout
-    assert summary(proc.stdout)[1] == 8
+    assert summary(proc.stdout)[0] == "ovrad"
 
 
 def test_demo_never_overwrites_its_input(run_blender, tmp_path):
     copy = tmp_path / "scene.blend"
     copy.write_bytes(CORNELL.read_bytes())
     proc = run_blender(
-        [
-            "-b",
-            "--factory-startup",
-            str(copy),
-            "-P",
-            str(ROOT / "scripts" / "ovrad_demo.py"),
-            "--",
-            "--output",
-            str(copy),
-        ]
+        ["-b", "--factory-startup", str(copy), "-P", str(ROOT / "scripts" / "ovrad_demo.py"), "--"]
+        + ["--output", str(copy)]
     )
-    assert proc.returncode == 2 and "refusing to overwrite the input file" in proc.stderr
+    assert proc.returncode == 1 and "refusing to overwrite the input file" in proc.stderr
     assert copy.read_bytes() == CORNELL.read_bytes()

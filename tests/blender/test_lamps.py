@@ -124,13 +124,20 @@ def plane(ovrad):
     return obj
 
 
-def irradiance_at_vertices(obj, lamp_obj):
-    """Solve with only `lamp_obj`, bake irradiance; (points (m, 3), E (m,)) at central vertices."""
+def irradiance_at_vertices(obj, lamp_obj, sharp=True, solve=True):
+    """Solve with only `lamp_obj`, bake irradiance; (points (m, 3), E (m,)) at central vertices.
+    sharp: direct light computed at the vertices (the default), else all from the patches."""
     for o in list(bpy.data.objects):
         if o.type == "LIGHT" and o != lamp_obj:
             bpy.data.objects.remove(o)
-    assert bpy.ops.ovrad.solve() == {"FINISHED"}
-    assert bpy.ops.ovrad.bake_vertex(attribute="E", quantity="IRRADIANCE", domain="POINT") == {"FINISHED"}
+    if solve:
+        assert bpy.ops.ovrad.solve() == {"FINISHED"}
+    bpy.context.scene.ovrad.bake_direct = sharp
+    try:
+        result = bpy.ops.ovrad.bake_vertex(attribute="E", quantity="IRRADIANCE", domain="POINT")
+    finally:
+        bpy.context.scene.ovrad.bake_direct = True
+    assert result == {"FINISHED"}
     attr = obj.data.attributes["E"]
     vals = np.empty(4 * len(attr.data), np.float32)
     attr.data.foreach_get("color", vals)
@@ -194,9 +201,30 @@ def test_every_lamp_type_lights_a_plane_as_its_closed_form(plane, kind, ovrad):
     setup, exact = LAMPS[kind]
     setup = dict(setup)
     lamp = add_lamp(setup.pop("kind"), **setup)
+    # Direct light at the vertices: exact for point, spot and sun (shadow rays to one point);
+    # area lamps go through a fixed 8 x 8 rule of lamp points (measured 5e-4 for the rectangle).
     points, got = irradiance_at_vertices(plane, lamp)
     want = exact(points)
     err = (got - want) / want
-    rms = np.sqrt(np.mean(err**2))
-    print(f"{kind}: {len(points)} vertices, max |error| {np.abs(err).max():.4f}, rms {rms:.4f}")
-    assert len(points) > 300 and np.abs(err).max() < 0.02
+    print(f"{kind}: {len(points)} vertices, max |error| {np.abs(err).max():.2e}")
+    assert len(points) > 300 and np.abs(err).max() < 2e-3
+    # All from the patches (the paper's reconstruction): a patch averages the fall-off across it
+    # (measured 1.4-1.8 % with the lamps 2.5-3.5 m above 600 patches on the 3 m plane).
+    points, got = irradiance_at_vertices(plane, lamp, sharp=False, solve=False)
+    err = (got - want) / want
+    print(f"{kind}: from the patches, max |error| {np.abs(err).max():.4f}")
+    assert np.abs(err).max() < 0.02
+
+
+def test_a_bake_after_the_lamps_changed_asks_for_a_new_solve(plane, ovrad):
+    lamp = add_lamp("POINT", location=(0.0, 0.0, 2.0), energy=100.0)
+    irradiance_at_vertices(plane, lamp)
+    before = plane.data.attributes["E"].data[0].color[:]
+    lamp.data.energy = 200.0
+    bpy.context.view_layer.update()
+    with pytest.raises(RuntimeError, match="lamps or emissive materials changed since the last solve"):
+        bpy.ops.ovrad.bake_vertex(attribute="E", quantity="IRRADIANCE")
+    assert plane.data.attributes["E"].data[0].color[:] == before  # nothing written
+    # Solving again makes the bake follow the new power exactly.
+    points, got = irradiance_at_vertices(plane, lamp)
+    np.testing.assert_allclose(got, analytic.point_lamp_irradiance(200.0, (0, 0, 2.0), points, UP), rtol=1e-5)

@@ -1,0 +1,181 @@
+"""Direct light at arbitrary surface points: lamps and small emitters, each with shadow rays.
+
+The solver's first shot projects direct light onto the patches, which blurs it to their size:
+a shadow edge or the fast fall-off under a lamp cannot be sharper than a patch. A bake point
+(vertex, texel) instead gets its direct light computed where it is, and only the indirect part,
+which varies slowly, comes from the patches (pipeline.radiance_at). This is the same split as
+"direct + indirect from a radiosity mesh" in classical light baking.
+
+Emitters are integrated with one fixed rule of points on their triangles (emitter_samples),
+the same for every receiver point, so that baked light has no noise. Emission shaders emit
+from both sides of a face (as in Cycles), so both sides count.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .lights import Lamp, lamp_irradiance, shadow_origin
+from .surfaces import Surfaces
+
+_CHUNK_RAYS = 1 << 20
+
+
+@dataclass(frozen=True)
+class DirectLight:
+    """The light shot straight to bake points: lamps, the emitting triangles sampled with shadow
+    rays (emitters (T,) bool over surfaces.triangles), their emission scale, samples per point."""
+
+    lamps: tuple[Lamp, ...] = ()
+    emitters: np.ndarray | None = None
+    emission_scale: float = 1.0
+    samples: int = 64
+
+    def is_empty(self) -> bool:
+        return not self.lamps and (self.emitters is None or not np.any(self.emitters))
+
+
+def triangle_normals(surfaces: Surfaces, triangles: np.ndarray) -> np.ndarray:
+    """Unit geometric normals (m, 3) of triangles (zero for degenerate ones)."""
+    c = surfaces.corners[np.asarray(triangles, np.int64)]
+    n = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.where(length > 0, n / np.maximum(length, 1e-300), 0.0)
+
+
+def _subtriangle_centroids(k: int) -> np.ndarray:
+    """Barycentric (u, v) of the centroids of the k^2 congruent triangles a triangle splits into."""
+    i, j = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
+    up = (i + j) <= k - 1
+    down = (i + j) <= k - 2
+    uv_up = np.column_stack([(i[up] + 1 / 3) / k, (j[up] + 1 / 3) / k])
+    uv_down = np.column_stack([(i[down] + 2 / 3) / k, (j[down] + 2 / 3) / k])
+    return np.vstack([uv_up, uv_down])
+
+
+@dataclass(frozen=True)
+class EmitterSamples:
+    """A fixed quadrature of the emitting surfaces: points (k, 3), unit normals (k, 3), the area
+    each point stands for (k,), and its emitted radiance (k, 3)."""
+
+    points: np.ndarray
+    normals: np.ndarray
+    area: np.ndarray
+    radiance: np.ndarray
+
+
+def emitter_samples(
+    surfaces: Surfaces, emitters: np.ndarray, count: int, scale: float = 1.0
+) -> EmitterSamples:
+    """About `count` points over the emitting triangles, shared by every receiver point.
+
+    A fixed rule instead of random samples per receiver: neighbouring bake points see the same
+    samples, so the result is smooth (no noise); its error is that of a midpoint rule. Each
+    triangle gets points in proportion to its power, as the centroids of its k^2 congruent
+    sub-triangles; when there are more emitting triangles than points, `count` of them are
+    picked by systematic sampling on their power, each point standing for an equal power.
+    """
+    tri = np.flatnonzero(np.asarray(emitters, bool) & (surfaces.emission.sum(axis=1) > 0))
+    c = surfaces.corners[tri]
+    cross = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
+    area = 0.5 * np.linalg.norm(cross, axis=1)
+    radiance = surfaces.emission[tri] * scale
+    power = area * radiance.sum(axis=1)
+    keep = power > 0
+    c, cross, area, radiance, power = c[keep], cross[keep], area[keep], radiance[keep], power[keep]
+    if len(c) == 0 or count < 1:
+        z = np.zeros((0, 3))
+        return EmitterSamples(z, z, np.zeros(0), z)
+    normal = cross / np.linalg.norm(cross, axis=1, keepdims=True)
+    total = power.sum()
+    if len(c) >= count:
+        pick = np.searchsorted(np.cumsum(power) / total, (np.arange(count) + 0.5) / count)
+        pick = np.minimum(pick, len(c) - 1)
+        pts = c[pick].mean(axis=1)
+        return EmitterSamples(pts, normal[pick], area[pick] * (total / count) / power[pick], radiance[pick])
+    want = np.maximum(1, np.round(count * power / total)).astype(np.int64)
+    side = np.ceil(np.sqrt(want)).astype(np.int64)
+    pts, nrm, wts, rad = [], [], [], []
+    for k in np.unique(side):
+        sel = np.flatnonzero(side == k)
+        uv = _subtriangle_centroids(int(k))
+        cc = c[sel]
+        p = cc[:, None, 0] + uv[None, :, :1] * (cc[:, None, 1] - cc[:, None, 0])
+        p = p + uv[None, :, 1:] * (cc[:, None, 2] - cc[:, None, 0])
+        pts.append(p.reshape(-1, 3))
+        nrm.append(np.repeat(normal[sel], len(uv), axis=0))
+        wts.append(np.repeat(area[sel] / len(uv), len(uv)))
+        rad.append(np.repeat(radiance[sel], len(uv), axis=0))
+    return EmitterSamples(np.vstack(pts), np.vstack(nrm), np.concatenate(wts), np.vstack(rad))
+
+
+def emitter_irradiance(
+    surfaces: Surfaces,
+    rays,
+    emitters: np.ndarray,
+    points: np.ndarray,
+    normals: np.ndarray,
+    samples: int = 64,
+    scale: float = 1.0,
+) -> tuple[np.ndarray, int]:
+    """Irradiance (m, 3) at points with unit normals (m, 3) from the emitting triangles `emitters`
+    ((T,) bool), over a fixed rule of about `samples` emitter points with a shadow ray each; and
+    the number of rays cast. Deterministic."""
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    nrm = np.asarray(normals, np.float64).reshape(-1, 3)
+    H = np.zeros((len(pts), 3))
+    src = emitter_samples(surfaces, emitters, samples, scale)
+    k = len(src.area)
+    if len(pts) == 0 or k == 0:
+        return H, 0
+    eps = 1e-6 * surfaces.extent
+    cast = 0
+    step = max(1, _CHUNK_RAYS // k)
+    for r0 in range(0, len(pts), step):
+        rs = np.arange(r0, min(len(pts), r0 + step))
+        v = src.points[None, :, :] - pts[rs, None]
+        d2 = np.einsum("rsk,rsk->rs", v, v)
+        d = np.sqrt(np.maximum(d2, 1e-300))
+        omega = v / d[..., None]
+        cos_r = np.einsum("rsk,rk->rs", omega, nrm[rs])
+        cos_s = np.abs(np.einsum("rsk,sk->rs", omega, src.normals))
+        r_i, s_i = np.nonzero((cos_r > 0) & (cos_s > 0) & (d2 > 0))
+        # From just off the receiver to just off the emitter on the receiver's side: a ray aimed
+        # at the sample itself would meet the emitter's own face short of it at grazing angles.
+        w = omega[r_i, s_i]
+        origin = shadow_origin(pts[rs[r_i]], nrm[rs[r_i]], w, eps)
+        towards = -np.sign(np.einsum("ij,ij->i", w, src.normals[s_i]))
+        seg = src.points[s_i] + (eps * towards)[:, None] * src.normals[s_i] - origin
+        length = np.linalg.norm(seg, axis=1)
+        blocked = rays.occluded(origin, seg / length[:, None], length * (1 - 1e-6))
+        cast += len(r_i)
+        r_i, s_i = r_i[~blocked], s_i[~blocked]
+        g = cos_r[r_i, s_i] * cos_s[r_i, s_i] / d2[r_i, s_i] * src.area[s_i]
+        np.add.at(H, rs[r_i], g[:, None] * src.radiance[s_i])
+    return H, cast
+
+
+def direct_irradiance(
+    surfaces: Surfaces, rays, light: DirectLight, points: np.ndarray, normals: np.ndarray
+) -> tuple[np.ndarray, int]:
+    """Direct irradiance (m, 3) in W/m^2 at points with unit normals: lamps plus the sampled
+    emitters of `light`; and the rays cast."""
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    nrm = np.asarray(normals, np.float64).reshape(-1, 3)
+    H = np.zeros((len(pts), 3))
+    cast = 0
+    if light.lamps:
+        for c0 in range(0, len(pts), _CHUNK_RAYS):
+            sl = slice(c0, c0 + _CHUNK_RAYS)
+            h, n = lamp_irradiance(light.lamps, pts[sl], nrm[sl], rays, surfaces.extent)
+            H[sl] += h
+            cast += n
+    if light.emitters is not None and np.any(light.emitters):
+        h, n = emitter_irradiance(
+            surfaces, rays, light.emitters, pts, nrm, light.samples, light.emission_scale
+        )
+        H += h
+        cast += n
+    return H, cast

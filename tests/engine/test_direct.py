@@ -1,0 +1,137 @@
+"""Direct light at bake points (direct.py, pipeline.radiance_at with the first shot split off)
+against closed forms: emitter sampling, shadow rays from concave edges, sharp shadows."""
+
+import numpy as np
+import pytest
+from reference import analytic
+
+import scenes
+from ovrad_addon.atlas import build_atlas
+from ovrad_addon.direct import emitter_irradiance, triangle_normals
+from ovrad_addon.lights import Lamp, lamp_irradiance
+from ovrad_addon.pipeline import SolveSettings, direct_light, irradiance_at, prepare, radiance_at, solve
+from ovrad_addon.rays import make_rays
+from ovrad_addon.settings import AtlasSettings
+from ovrad_addon.surfaces import Surfaces
+
+RHO = 0.8
+
+
+def _emitter_over_plane(flip: bool):
+    """A 1 m x 0.8 m emitting rectangle 0.5 m above a 4 m plane, facing down (or up, flipped)."""
+    rect = np.array([[-0.5, -0.4, 0.5], [0.5, -0.4, 0.5], [0.5, 0.4, 0.5], [-0.5, 0.4, 0.5]])
+    tri = np.array([[0, 2, 1], [0, 3, 2]]) if not flip else np.array([[0, 1, 2], [0, 2, 3]])
+    pv, pt = scenes.plane(size=4.0, n=1)
+    v = np.vstack([rect, pv - [2.0, 2.0, 0.0]])
+    t = np.vstack([tri, pt + 4])
+    emission = np.zeros((len(t), 3))
+    emission[:2] = [2.0, 1.0, 0.5]
+    s = Surfaces.from_arrays(v, t, object_index=[0, 0] + [1] * len(pt), emission=emission)
+    return s, rect
+
+
+@pytest.mark.parametrize("flip", [False, True])
+def test_emitter_irradiance_matches_lambert_contour_form_factor(flip):
+    # Emission shaders emit from both sides (as in Cycles): the winding must not matter.
+    s, rect = _emitter_over_plane(flip)
+    rng = np.random.default_rng(3)
+    pts = np.zeros((200, 3))
+    pts[:, :2] = rng.uniform(-1.2, 1.2, size=(200, 2))  # under the emitter and well beside it
+    nrm = np.tile([0.0, 0.0, 1.0], (200, 1))
+    rays = make_rays(s.vertices, s.triangles)
+    exact = np.pi * analytic.ff_point_to_polygon(pts, nrm, rect)[:, None] * [2.0, 1.0, 0.5]
+    errors = []
+    for samples in (64, 256):
+        H, cast = emitter_irradiance(s, rays, s.emission.sum(1) > 0, pts, nrm, samples)
+        errors.append(np.abs(H / exact - 1.0).max())
+        # the rule: each of the 2 triangles split into k^2 sub-triangles, k = ceil(sqrt(samples / 2))
+        k = int(np.ceil(np.sqrt(samples / 2)))
+        assert cast == 200 * 2 * k * k
+    # a midpoint rule: second order, so 4x the points gives about 1/4 of the error
+    # (measured 1.15 % and 0.29 %)
+    assert errors[1] < 4e-3
+    assert 3.0 < errors[0] / errors[1] < 5.0
+
+
+def test_shadow_ray_from_a_concave_edge_is_not_blocked_by_the_neighbouring_face():
+    # A floor and a wall meeting at x = 0; points on the line where they meet lie in both planes.
+    floor = scenes.quad([0, -1, 0], [2, -1, 0], [2, 1, 0], [0, 1, 0])
+    wall = scenes.quad([0, -1, 0], [0, 1, 0], [0, 1, 2], [0, -1, 2])
+    v = np.vstack([floor[0], wall[0]])
+    t = np.vstack([floor[1], wall[1] + 4])
+    rays = make_rays(v, t)
+    pts = np.column_stack([np.zeros(9), np.linspace(-0.8, 0.8, 9), np.zeros(9)])
+    to_sun = np.array([1.0, 0.0, 1.0]) / np.sqrt(2.0)
+    sun = Lamp("SUN", direction=tuple(-to_sun), power=3.0)
+    for normal in ([0.0, 0.0, 1.0], [1.0, 0.0, 0.0]):  # as a floor point and as a wall point
+        nrm = np.tile(normal, (9, 1))
+        H, _ = lamp_irradiance((sun,), pts, nrm, rays, 2.0)
+        np.testing.assert_allclose(H[:, 0], 3.0 * (nrm @ to_sun), rtol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def shadowed_plane():
+    """A 4 m plane (rho 0.8) under a point lamp, with a 0.6 m square pure occluder between."""
+    pv, pt = scenes.plane(size=4.0, n=4)
+    occ_v, occ_t = scenes.quad([-0.3, -0.3, 1.0], [0.3, -0.3, 1.0], [0.3, 0.3, 1.0], [-0.3, 0.3, 1.0])
+    v = np.vstack([pv - [2.0, 2.0, 0.0], occ_v])
+    t = np.vstack([pt, occ_t + len(pv)])
+    obj = np.r_[np.zeros(len(pt), int), np.ones(len(occ_t), int)]
+    s = Surfaces.from_arrays(v, t, object_index=obj, reflectance=[RHO] * 3, receiver=[True, False])
+    atlas = build_atlas(s, AtlasSettings(patch_count=400))
+    problem = prepare(s, atlas)
+    lamp = Lamp("POINT", position=(0.2, 0.1, 2.0), power=500.0)
+    return problem, lamp, solve(problem, (lamp,))
+
+
+def _closed_form_direct(points, lamp_pos, power):
+    """Point-lamp irradiance on the plane z = 0, zero where the segment to the lamp crosses the
+    occluder square |x|, |y| <= 0.3 at z = 1; and how far each point is from the shadow's edge."""
+    v = lamp_pos - points
+    d2 = np.einsum("ij,ij->i", v, v)
+    H = power / (4 * np.pi) * v[:, 2] / np.sqrt(d2) / d2
+    s = (1.0 - points[:, 2]) / v[:, 2]  # where the segment meets z = 1
+    cross = points[:, :2] + s[:, None] * v[:, :2]
+    margin = np.abs(np.abs(cross) - 0.3).min(axis=1)
+    shadow = np.all(np.abs(cross) < 0.3, axis=1)
+    return np.where(shadow, 0.0, H), margin
+
+
+def test_bake_points_get_the_exact_shadow_edge(shadowed_plane):
+    # Only the plane receives and nothing reflects back onto it: the radiance at any point is
+    # exactly rho x direct / pi, however sharp the shadow. The patches alone blur the edge.
+    problem, lamp, state = shadowed_plane
+    rng = np.random.default_rng(5)
+    pts = np.zeros((3000, 3))
+    pts[:, :2] = rng.uniform(-1.0, 1.0, size=(3000, 2))
+    exact, margin = _closed_form_direct(pts, np.array(lamp.position), lamp.power)
+    pts, exact = pts[margin > 1e-6], exact[margin > 1e-6]
+    tri = problem.index.rays.closest_hit(pts + [0, 0, 1e-3], np.tile([0, 0, -1.0], (len(pts), 1)), 1.0)[1]
+    light = direct_light(problem, (lamp,), SolveSettings())
+    sharp = radiance_at(problem, state.radiosity, pts, tri, 1, state.first_shot, light)[:, 0]
+    np.testing.assert_allclose(sharp, RHO * exact / np.pi, rtol=1e-9, atol=1e-12)
+    H = np.pi * irradiance_at(problem, state.radiosity, pts, tri, 1, state.first_shot, light)[:, 0]
+    np.testing.assert_allclose(H, exact, rtol=1e-9, atol=1e-12)
+    blurred = radiance_at(problem, state.radiosity, pts, tri, 1)[:, 0]
+    near_edge = margin[margin > 1e-6] < 0.05
+    assert np.abs(blurred - RHO * exact / np.pi)[near_edge].max() > 0.1 * (RHO * exact / np.pi).max()
+
+
+def test_split_keeps_the_furnace_exact():
+    # A closed cube with uniform emission: large emitters stay in the patch solution (no split),
+    # so the reconstruction with the split arguments equals L_e / (1 - rho).
+    s = scenes.cube(inward=True)
+    s = Surfaces.from_arrays(s.vertices, s.triangles, reflectance=[0.5] * 3, emission=[1.0, 1.0, 1.0])
+    problem = prepare(s, build_atlas(s, AtlasSettings(patch_count=300)))
+    state = solve(problem)
+    light = direct_light(problem, (), SolveSettings())
+    assert not np.any(light.emitters)
+    pts, tri = scenes.sample_surface(s, 2000, seed=1)
+    L = radiance_at(problem, state.radiosity, pts, tri, 1, state.first_shot, light)
+    np.testing.assert_allclose(L, analytic.furnace_radiance(1.0, 0.5), rtol=1e-3)
+
+
+def test_triangle_normals_are_unit_and_zero_for_degenerate_triangles():
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 2, 0], [2, 0, 0]], float)
+    s = Surfaces.from_arrays(v, [[0, 1, 2], [0, 1, 3]])
+    np.testing.assert_allclose(triangle_normals(s, np.array([0, 1])), [[0, 0, 1], [0, 0, 0]])
