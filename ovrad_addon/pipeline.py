@@ -19,7 +19,7 @@ from .errors import OvradError
 from .lights import Lamp, lamp_irradiance
 from .overlap import alpha_at, overlap_matrix, patch_average, patch_quadrature, reconstruct
 from .settings import AtlasSettings, ObjectSettings
-from .solver import SolveState, _factor, solve_progressive
+from .solver import SolveState, _factor, inverse_areas, solve_progressive
 from .surfaces import Surfaces
 from .transport import Transport, gather_transport
 
@@ -193,7 +193,10 @@ def sampled_emitters(problem: Problem, emission_scale: float = 1.0) -> np.ndarra
     E = patch_emission(problem, emission_scale)
     emitting = np.abs(E).sum(axis=1) > 0
     small = atlas.effective_area[emitting].sum() <= NEE_AREA_FRACTION * atlas.effective_area.sum()
-    on = problem.surfaces.emission.sum(axis=1) > 0
+    surfaces = problem.surfaces
+    # only emitters with patches: their light is what E holds (an emitter without an atlas is
+    # ignored, and the operators say so)
+    on = (surfaces.emission.sum(axis=1) > 0) & surfaces.receiver[surfaces.object_index]
     return on if small and emission_scale > 0 else np.zeros_like(on)
 
 
@@ -249,8 +252,8 @@ def solve(
         if settings.rule == "exact":
             dB = _factor(C_solve).solve(received)
         else:
-            A = atlas.support_area
-            dB = (problem.C.T @ (received / A[:, None])) / A[:, None]
+            inv = inverse_areas(atlas.support_area)[:, None]
+            dB = (problem.C.T @ (received * inv)) * inv
         unshot = dB if small else dB + E
         state = SolveState(
             radiosity=E + dB, unshot=unshot, rays=problem.rays + lamp_rays + emit_rays, first_shot=dB

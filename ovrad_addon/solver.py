@@ -54,6 +54,15 @@ def _factor(C):
     return splu((Cc + diags(_REGULARISE * np.maximum(d, d.max() * 1e-12))).tocsc())
 
 
+def inverse_areas(A: np.ndarray) -> np.ndarray:
+    """1 / A_h, and 0 for a patch with no support (nothing of the surface in it: it neither
+    receives nor holds light, and must not turn the paper's rule into NaN)."""
+    A = np.asarray(A, np.float64)
+    out = np.zeros_like(A)
+    np.divide(1.0, A, out=out, where=A > 0)
+    return out
+
+
 def unshot_fraction(effective_area: np.ndarray, unshot: np.ndarray, emitted: float) -> float:
     """Unshot power sum_k c_kk |dB_k| (all channels) over the emitted power."""
     return float(np.sum(effective_area[:, None] * np.abs(unshot)) / max(emitted, 1e-300))
@@ -93,7 +102,7 @@ def solve_progressive(
         to_basis = lu.solve
     else:
         A = np.asarray(support_area if support_area is not None else np.asarray(C.sum(axis=1)).ravel())
-        P = diags(1.0 / A) @ csc_matrix(C).T @ diags(1.0 / A)
+        P = diags(inverse_areas(A)) @ csc_matrix(C).T @ diags(inverse_areas(A))
         to_basis = P.dot
     st = state or SolveState(radiosity=E.copy(), unshot=E.copy())
     best = np.inf

@@ -135,3 +135,15 @@ def test_triangle_normals_are_unit_and_zero_for_degenerate_triangles():
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 2, 0], [2, 0, 0]], float)
     s = Surfaces.from_arrays(v, [[0, 1, 2], [0, 1, 3]])
     np.testing.assert_allclose(triangle_normals(s, np.array([0, 1])), [[0, 0, 1], [0, 0, 0]])
+
+
+def test_only_emitters_with_patches_are_shot():
+    # An emitter without an atlas (a pure occluder) gives no light: the operators warn about it.
+    s, _ = _emitter_over_plane(False)
+    for receiver, expected in (([True, True], 2), ([False, True], 0)):
+        t = Surfaces.from_arrays(
+            s.vertices, s.triangles, s.object_index, emission=s.emission, receiver=receiver
+        )
+        atlas = build_atlas(t, AtlasSettings(patch_count=100))
+        problem = prepare(t, atlas, SolveSettings(rays_per_point=4))
+        assert int(direct_light(problem).emitters.sum()) == expected

@@ -147,3 +147,14 @@ def test_light_does_not_leak_through_a_thin_wall():
     left = atlas.source_object == 0
     assert H[left].mean() > 1.0
     assert H[~left].mean() < 1e-3 * H[left].mean()
+
+
+def test_paper_rule_stays_finite_when_a_patch_has_no_support():
+    # A patch whose support integrates to 0 (nothing of its sheet under it) receives and holds
+    # nothing: the published rule's 1/A_h must not turn the whole solve into NaN.
+    s, (atlas, index, C, T, E) = lit_cube(1.3, "box")
+    A = np.asarray(C.sum(axis=1)).ravel().copy()
+    A[0] = 0.0
+    state = solve_progressive(C, T, E, tolerance=1e-6, rule="paper", support_area=A)
+    assert state.converged and np.all(np.isfinite(state.radiosity))
+    assert np.all(state.radiosity[0] == E[0])  # it got no light: 1/A_0 is taken as 0
