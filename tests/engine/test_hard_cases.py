@@ -27,7 +27,8 @@ def furnace(rho: float, extra_triangles: bool = False) -> Surfaces:
     return Surfaces.from_arrays(v, t, reflectance=[rho] * 3, emission=[LE] * 3)
 
 
-def reconstructed(s: Surfaces, atlas: Atlas, settings=SolveSettings()) -> np.ndarray:
+def reconstructed(s: Surfaces, atlas: Atlas, settings: SolveSettings | None = None) -> np.ndarray:
+    settings = settings or SolveSettings()
     problem = prepare(s, atlas, settings)
     state = solve(problem, (), settings)
     pts, tri = scenes.sample_surface(s, 5000, seed=4)  # by area: never on a zero-area triangle
