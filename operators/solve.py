@@ -500,11 +500,12 @@ def write_radiosity(
     scene, inputs: SolveInputs, radiosity: np.ndarray, first_shot: np.ndarray | None = None
 ) -> list[str]:
     """Radiance B/pi (FLOAT_COLOR, alpha 1) on each atlas object, shown by the display, and the
-    first shot's share of it (direct light, for bakes) with the key of the light it came from;
-    returns the names of atlas objects that changed under the solve (skipped)."""
+    first shot's share of it (direct light, for bakes) with the key of the light it came from
+    (first_shot None: an intermediate write, which removes both); returns the names of atlas
+    objects that changed under the solve (skipped)."""
     skipped = []
     radiance = np.asarray(radiosity, np.float64) / np.pi
-    direct = np.zeros_like(radiance) if first_shot is None else np.asarray(first_shot, np.float64) / np.pi
+    direct = radiance if first_shot is None else np.asarray(first_shot, np.float64) / np.pi
     key = light_key(inputs.surfaces, inputs.lamps)
     start = 0
     for name, count in zip(inputs.atlas_names, inputs.counts, strict=True):
@@ -516,8 +517,16 @@ def write_radiosity(
             skipped.append(name)
             continue
         attributes.write_point_attribute(obj.data, names.RADIOSITY, part, "FLOAT_COLOR")
-        attributes.write_point_attribute(obj.data, names.DIRECT, part_direct, "FLOAT_COLOR")
-        obj[names.PROP_LIGHT_KEY] = key
+        if first_shot is None:
+            # a live, intermediate write: no split to bake from until the solve has finished
+            # (a bake would otherwise add direct light to a radiosity that holds it already)
+            old = obj.data.attributes.get(names.DIRECT)
+            if old is not None:
+                obj.data.attributes.remove(old)
+            obj.pop(names.PROP_LIGHT_KEY, None)
+        else:
+            attributes.write_point_attribute(obj.data, names.DIRECT, part_direct, "FLOAT_COLOR")
+            obj[names.PROP_LIGHT_KEY] = key
         obj.data.update()
         display.set_quantity(obj, "RADIOSITY")
     if scene.ovrad.display_quantity != "RADIOSITY":
