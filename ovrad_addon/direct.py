@@ -33,9 +33,6 @@ class DirectLight:
     emission_scale: float = 1.0
     samples: int = 64
 
-    def is_empty(self) -> bool:
-        return not self.lamps and (self.emitters is None or not np.any(self.emitters))
-
 
 def triangle_normals(surfaces: Surfaces, triangles: np.ndarray) -> np.ndarray:
     """Unit geometric normals (m, 3) of triangles (zero for degenerate ones)."""

@@ -147,3 +147,24 @@ def test_only_emitters_with_patches_are_shot():
         atlas = build_atlas(t, AtlasSettings(patch_count=100))
         problem = prepare(t, atlas, SolveSettings(rays_per_point=4))
         assert int(direct_light(problem).emitters.sum()) == expected
+
+
+def test_an_emitter_of_more_triangles_than_samples_is_picked_by_power():
+    # A 1 m square emitter as 800 triangles, 0.5 m above the points: with 64 or 256 samples the
+    # rule picks that many triangle centroids (systematic sampling on power), each standing for
+    # an equal share; with 1 024 every triangle gets its own point.
+    pv, pt = scenes.plane(size=1.0, n=20, z=0.5)
+    s = Surfaces.from_arrays(pv - [0.5, 0.5, 0.0], pt, emission=[1.0, 1.0, 1.0])
+    rect = np.array([[-0.5, -0.5, 0.5], [0.5, -0.5, 0.5], [0.5, 0.5, 0.5], [-0.5, 0.5, 0.5]])
+    rng = np.random.default_rng(3)
+    pts = np.zeros((200, 3))
+    pts[:, :2] = rng.uniform(-1.2, 1.2, size=(200, 2))
+    nrm = np.tile([0.0, 0.0, 1.0], (200, 1))
+    exact = np.pi * analytic.ff_point_to_polygon(pts, nrm, rect)
+    rays = make_rays(s.vertices, s.triangles)
+    # measured worst point: 6.8 %, 1.3 %, 0.12 %; the total within 0.16 %
+    for samples, worst in ((64, 0.08), (256, 0.02), (1024, 2e-3)):
+        H, cast = emitter_irradiance(s, rays, np.ones(len(pt), bool), pts, nrm, samples)
+        assert cast == 200 * min(samples, len(pt))
+        assert np.abs(H[:, 0] / exact - 1.0).max() < worst
+        assert abs(H[:, 0].sum() / exact.sum() - 1.0) < 2e-3
