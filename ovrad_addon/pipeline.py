@@ -14,9 +14,9 @@ import numpy as np
 from scipy.sparse import csc_matrix, diags
 
 from .atlas import Atlas, SurfaceIndex, index_surfaces
-from .direct import DirectLight, direct_irradiance, emitter_irradiance, triangle_normals
+from .direct import DirectLight, direct_irradiance, triangle_normals
 from .errors import OvradError
-from .lights import Lamp, lamp_irradiance
+from .lights import Lamp
 from .overlap import alpha_at, overlap_matrix, patch_average, patch_quadrature, reconstruct
 from .settings import AtlasSettings, ObjectSettings
 from .solver import SolveState, _factor, inverse_areas, solve_progressive
@@ -232,21 +232,12 @@ def solve(
     if state is None:
         T = problem.transport
         rp = T.points
-        H, lamp_rays = lamp_irradiance(
-            lamps, rp.points, rp.normals, problem.index.rays, problem.surfaces.extent
+        light = replace(
+            direct_light(problem, lamps, settings, emission_scale), samples=settings.light_samples
         )
-        emitters = sampled_emitters(problem, emission_scale)
-        small = bool(np.any(emitters))
-        direct, emit_rays = emitter_irradiance(
-            problem.surfaces,
-            problem.index.rays,
-            emitters,
-            rp.points,
-            rp.normals,
-            settings.light_samples,
-            emission_scale,
-        )
-        received = T.test(H + direct, problem.surfaces.reflectance[rp.triangle])
+        small = bool(np.any(light.emitters))
+        H, direct_rays = direct_irradiance(problem.surfaces, problem.index.rays, light, rp.points, rp.normals)
+        received = T.test(H, problem.surfaces.reflectance[rp.triangle])
         if not np.any(received > 0) and not np.any(E > 0):
             raise OvradError("no light: nothing in the scene emits (add a lamp or an emissive material)")
         if settings.rule == "exact":
@@ -255,9 +246,7 @@ def solve(
             inv = inverse_areas(atlas.support_area)[:, None]
             dB = (problem.C.T @ (received * inv)) * inv
         unshot = dB if small else dB + E
-        state = SolveState(
-            radiosity=E + dB, unshot=unshot, rays=problem.rays + lamp_rays + emit_rays, first_shot=dB
-        )
+        state = SolveState(radiosity=E + dB, unshot=unshot, rays=problem.rays + direct_rays, first_shot=dB)
         if not np.any(np.abs(state.unshot) > 0):
             state.converged = True
             return state
@@ -275,19 +264,22 @@ def solve(
     )
 
 
-def _direct_at(problem: Problem, light: DirectLight, points, tri, sides) -> np.ndarray:
-    """Direct irradiance (m, 3) at surface points, on the given side of their triangles."""
-    normals = triangle_normals(problem.surfaces, tri) * np.broadcast_to(np.asarray(sides), tri.shape)[:, None]
-    return direct_irradiance(problem.surfaces, problem.index.rays, light, points, normals)[0]
-
-
-def _split(problem: Problem, radiosity: np.ndarray, first_shot, light) -> tuple[np.ndarray, bool]:
-    """The radiosity the patches reconstruct, and whether direct light is added at the points."""
+def _at_points(problem: Problem, radiosity, points, triangles, sides, first_shot, light):
+    """What both reconstructions need at surface points: triangles (m,), alpha (m, n), the
+    coefficients the patches reconstruct, and the direct irradiance (m, 3) computed at the points
+    where the solve's first shot is split off (else None)."""
+    tri = np.asarray(triangles, np.int64)
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    side = np.broadcast_to(np.asarray(sides), tri.shape)
+    a = alpha_at(problem.atlas, problem.index, pts, tri, side)
     if first_shot is None or light is None:
-        return radiosity, False
+        return tri, a, radiosity, None
     if first_shot.shape != radiosity.shape:
         raise OvradError("the first shot does not match the radiosity: solve again")
-    return radiosity - first_shot, True
+    normals = triangle_normals(problem.surfaces, tri) * side[:, None]
+    H = direct_irradiance(problem.surfaces, problem.index.rays, light, pts, normals)[0]
+    covered = np.asarray(a.sum(axis=1)).ravel() > 0
+    return tri, a, radiosity - first_shot, np.where(covered[:, None], H, 0.0)
 
 
 def radiance_at(
@@ -304,16 +296,10 @@ def radiance_at(
     With the solve's first shot and its direct light, the points get their direct light computed
     where they are (shadow rays) and only the rest of the radiosity from the patches.
     """
-    tri = np.asarray(triangles, np.int64)
-    pts = np.asarray(points, np.float64).reshape(-1, 3)
-    side = np.broadcast_to(np.asarray(sides), tri.shape)
-    a = alpha_at(problem.atlas, problem.index, pts, tri, side)
-    coeffs, split = _split(problem, radiosity, first_shot, light)
+    tri, a, coeffs, H = _at_points(problem, radiosity, points, triangles, sides, first_shot, light)
     out = reconstruct(a, coeffs)
-    if split:
-        covered = np.asarray(a.sum(axis=1)).ravel() > 0
-        H = _direct_at(problem, light, pts, tri, side)
-        out += np.where(covered[:, None], problem.surfaces.reflectance[tri] * H, 0.0)
+    if H is not None:
+        out += problem.surfaces.reflectance[tri] * H
     return out / np.pi
 
 
@@ -329,17 +315,12 @@ def irradiance_at(
     """Light arriving at surface points without the surface's albedo: H / pi (m, 3), in the units
     of radiance (a white surface's radiance), from B(M) - E(M) = rho(M) H(M); 0 where rho is 0
     (direct light at the points where it is split off, as in radiance_at)."""
-    tri = np.asarray(triangles, np.int64)
-    pts = np.asarray(points, np.float64).reshape(-1, 3)
-    side = np.broadcast_to(np.asarray(sides), tri.shape)
-    a = alpha_at(problem.atlas, problem.index, pts, tri, side)
+    tri, a, coeffs, H = _at_points(problem, radiosity, points, triangles, sides, first_shot, light)
     E = patch_emission(problem, light.emission_scale if light is not None else 1.0)
-    coeffs, split = _split(problem, radiosity, first_shot, light)
     reflected = reconstruct(a, coeffs - E)
     rho = problem.surfaces.reflectance[tri]
     with np.errstate(divide="ignore", invalid="ignore"):
         out = np.where(rho > 0, reflected / rho, 0.0)
-    if split:
-        covered = np.asarray(a.sum(axis=1)).ravel() > 0
-        out += np.where(covered[:, None], _direct_at(problem, light, pts, tri, side), 0.0)
+    if H is not None:
+        out += H
     return out / np.pi
