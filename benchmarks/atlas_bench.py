@@ -8,13 +8,14 @@ Writes benchmarks/results/atlas.csv and prints a table.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import resource
-import subprocess
 import sys
 import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import per_process  # noqa: E402  (benchmarks/ is not a package)
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "benchmarks" / "results" / "atlas.csv"
@@ -60,27 +61,16 @@ def main() -> None:
     if a.one:
         print(json.dumps(one(a.one, a.beta)))
         return
-    rows = []
-    for n in a.sizes:
-        out = subprocess.run(
-            [sys.executable, __file__, "--one", str(n), "--beta", a.beta],
-            capture_output=True,
-            text=True,
-            check=True,
-        )
-        rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
-        r = rows[-1]
-        print(
+    rows = per_process.run_sizes(
+        __file__,
+        a.sizes,
+        ["--beta", a.beta],
+        lambda r: (
             f"{r['patches']:>7} patches  generate {r['generate_s']:7.2f} s  C {r['overlap_C_s']:7.2f} s  "
-            f"peak {r['peak_rss_mb']:7.1f} MB  mean overlap {r['mean_overlap']}",
-            flush=True,
-        )
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    with OUT.open("w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-    print(f"wrote {OUT.relative_to(ROOT)}")
+            f"peak {r['peak_rss_mb']:7.1f} MB  mean overlap {r['mean_overlap']}"
+        ),
+    )
+    per_process.write_csv(rows, OUT)
 
 
 if __name__ == "__main__":

@@ -15,13 +15,14 @@ Writes benchmarks/results/transport.csv and prints a table.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import resource
-import subprocess
 import sys
 import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import per_process  # noqa: E402  (benchmarks/ is not a package)
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "benchmarks" / "results" / "transport.csv"
@@ -96,23 +97,10 @@ def main() -> None:
     if a.one:
         print(json.dumps(one(a.one, a.beta)))
         return
-    rows = []
-    for size in a.sizes:
-        proc = subprocess.run(
-            [sys.executable, __file__, "--one", str(size), "--beta", a.beta],
-            capture_output=True,
-            text=True,
-            check=True,
-        )
-        row = json.loads(proc.stdout.strip().splitlines()[-1])
-        rows.append(row)
-        print(" ".join(f"{k}={v}" for k, v in row.items()), flush=True)
-    OUT.parent.mkdir(exist_ok=True)
-    with open(OUT, "w", newline="") as fh:
-        w = csv.DictWriter(fh, list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-    print(f"wrote {OUT}")
+    rows = per_process.run_sizes(
+        __file__, a.sizes, ["--beta", a.beta], lambda r: " ".join(f"{k}={v}" for k, v in r.items())
+    )
+    per_process.write_csv(rows, OUT)
 
 
 if __name__ == "__main__":
