@@ -3,11 +3,11 @@ attribute, never a user's, topology-changing modifiers, and baking before solvin
 
 from __future__ import annotations
 
+import blender_scenes
 import numpy as np
 import pytest
 
 bpy = pytest.importorskip("bpy")
-bmesh = pytest.importorskip("bmesh")
 
 pytestmark = pytest.mark.blender
 
@@ -15,24 +15,8 @@ RHO, LE = 0.6, 1.0  # furnace: L = LE / (1 - RHO) = 2.5; light arriving, E / pi,
 
 
 def closed_box(name="Box", cuts=3):
-    """A 2 m cube seen from inside, uniform emission LE and reflectance RHO."""
-    mesh = bpy.data.meshes.new(name)
-    bm = bmesh.new()
-    bmesh.ops.create_cube(bm, size=2.0)
-    bmesh.ops.subdivide_edges(bm, edges=bm.edges[:], cuts=cuts, use_grid_fill=True)
-    bmesh.ops.reverse_faces(bm, faces=bm.faces[:])
-    bm.to_mesh(mesh)
-    bm.free()
-    obj = bpy.data.objects.new(name, mesh)
-    bpy.context.scene.collection.objects.link(obj)
-    mat = bpy.data.materials.new("furnace")
-    if mat.node_tree is None:
-        mat.use_nodes = True
-    bsdf = mat.node_tree.nodes["Principled BSDF"]
-    bsdf.inputs["Base Color"].default_value = (RHO, RHO, RHO, 1.0)
-    bsdf.inputs["Emission Color"].default_value = (1.0, 1.0, 1.0, 1.0)
-    bsdf.inputs["Emission Strength"].default_value = LE
-    mesh.materials.append(mat)
+    """A 2 m cube seen from inside, uniform emission LE and reflectance RHO, selected and active."""
+    obj = blender_scenes.closed_box(name, cuts, blender_scenes.principled("furnace", (RHO,) * 3, LE))
     bpy.context.view_layer.update()
     for o in bpy.context.view_layer.objects:
         o.select_set(o == obj)

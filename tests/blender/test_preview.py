@@ -3,6 +3,7 @@ every material, slot and mesh back exactly as it was."""
 
 from __future__ import annotations
 
+import blender_scenes
 import pytest
 
 bpy = pytest.importorskip("bpy")
@@ -12,14 +13,7 @@ pytestmark = pytest.mark.blender
 
 
 def principled(name, base=(0.6, 0.6, 0.6), emission=0.0):
-    mat = bpy.data.materials.new(name)
-    if mat.node_tree is None:
-        mat.use_nodes = True
-    bsdf = mat.node_tree.nodes["Principled BSDF"]
-    bsdf.inputs["Base Color"].default_value = (*base, 1.0)
-    bsdf.inputs["Emission Color"].default_value = (1.0, 1.0, 1.0, 1.0)
-    bsdf.inputs["Emission Strength"].default_value = emission
-    return mat
+    return blender_scenes.principled(name, base, emission)
 
 
 def mesh_object(name, make):

@@ -6,42 +6,19 @@ from __future__ import annotations
 import threading
 import time
 
+import blender_scenes
 import numpy as np
 import pytest
 
 bpy = pytest.importorskip("bpy")
-bmesh = pytest.importorskip("bmesh")
 
 pytestmark = pytest.mark.blender
 
 RHO, LE = 0.5, 1.0  # furnace: L = LE / (1 - RHO) = 2 everywhere inside
 
 
-def material(name, base=(0.8, 0.8, 0.8), emission=0.0):
-    mat = bpy.data.materials.new(name)
-    if mat.node_tree is None:
-        mat.use_nodes = True
-    bsdf = mat.node_tree.nodes["Principled BSDF"]
-    bsdf.inputs["Base Color"].default_value = (*base, 1.0)
-    bsdf.inputs["Emission Color"].default_value = (1.0, 1.0, 1.0, 1.0)
-    bsdf.inputs["Emission Strength"].default_value = emission
-    return mat
-
-
-def closed_box(name="Box", cuts=3, mat=None):
-    """A 2 m cube seen from inside (normals inward), its faces split into (cuts + 1)^2 quads."""
-    mesh = bpy.data.meshes.new(name)
-    bm = bmesh.new()
-    bmesh.ops.create_cube(bm, size=2.0)
-    bmesh.ops.subdivide_edges(bm, edges=bm.edges[:], cuts=cuts, use_grid_fill=True)
-    bmesh.ops.reverse_faces(bm, faces=bm.faces[:])
-    bm.to_mesh(mesh)
-    bm.free()
-    obj = bpy.data.objects.new(name, mesh)
-    bpy.context.scene.collection.objects.link(obj)
-    if mat is not None:
-        mesh.materials.append(mat)
-    return obj
+material = blender_scenes.principled
+closed_box = blender_scenes.closed_box
 
 
 def select(*objs):
