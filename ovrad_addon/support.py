@@ -53,15 +53,20 @@ def beta_of(
 
 
 def pair_beta(patches, idx, points, normals, sheets, beta: str) -> tuple[np.ndarray, np.ndarray]:
-    """Membership (m,) bool and beta (m,) for paired rows (point j, patch idx[j])."""
+    """Membership (m,) bool and beta (m,) for paired rows (point j, patch idx[j]); sheets (m,) the
+    points' sheets, or None when every pair is known to share its sheet (PatchGrid candidates)."""
+    if sheets is None:
+        return _same_sheet_beta(patches, idx, points, normals, beta)
     member = np.zeros(len(idx), bool)
     b = np.zeros(len(idx))
     # Cheap rejections first (sheet, then distance to the centre), full test on what is left.
     cand = np.flatnonzero(sheets == patches.sheet[idx])
     i = idx[cand]
     rel = points[cand] - patches.centers[i]
-    br = patches.bounding_radii[i]
-    near = np.einsum("ij,ij->i", rel, rel) <= br * br * (1 + 1e-12)
+    # no member is farther than its bounding radius (with the rim tolerance) in the plane and
+    # its thickness off it
+    br = patches.bounding_radii[i] * (1.0 + 10.0 * RIM_TOLERANCE)
+    near = np.einsum("ij,ij->i", rel, rel) <= br * br + patches.thickness[i] ** 2
     cand, i, rel = cand[near], i[near], rel[near]
     x = np.einsum("ij,ij->i", rel, patches.tangents[i])
     y = np.einsum("ij,ij->i", rel, patches.bitangents[i])
@@ -73,6 +78,19 @@ def pair_beta(patches, idx, points, normals, sheets, beta: str) -> tuple[np.ndar
     member[cand] = ok
     b[cand] = np.where(ok, bb, 0.0)
     return member, b
+
+
+def _same_sheet_beta(patches, i, points, normals, beta: str) -> tuple[np.ndarray, np.ndarray]:
+    """pair_beta for pairs on one sheet and near each other: no pre-filter, one pass of the full test."""
+    rel = points - patches.centers[i]
+    x = np.einsum("ij,ij->i", rel, patches.tangents[i])
+    y = np.einsum("ij,ij->i", rel, patches.bitangents[i])
+    n_i = patches.normals[i]
+    h = np.einsum("ij,ij->i", rel, n_i)
+    inside, bb = beta_of(patches, i, x, y, beta)
+    ok = inside & (np.einsum("ij,ij->i", normals, n_i) >= patches.min_cos[i])
+    ok &= np.abs(h) <= patches.thickness[i]
+    return ok, np.where(ok, bb, 0.0)
 
 
 def alpha_from_pairs(

@@ -20,6 +20,7 @@ import numpy as np
 from scipy.sparse import coo_matrix, csc_matrix
 
 from .overlap import alpha_at, patch_quadrature
+from .parallel import WORKERS, threaded
 
 
 @dataclass(frozen=True)
@@ -98,19 +99,29 @@ def gather_transport(
     rays_per_point: int = 32,
     q: int = 4,
     progress: Callable[[float], None] | None = None,
-    chunk_rays: int = 1 << 20,
+    chunk_rays: int = 1 << 17,
     seed: int = 0,
+    workers: int = WORKERS,
 ) -> Transport:
-    """Build G and rho by hemisphere gathering from every patch's receiver points."""
+    """Build G and rho by hemisphere gathering from every patch's receiver points.
+
+    Receiver points go in chunks of about chunk_rays rays, each chunk cast and resolved (alpha
+    at the hits, summed per (h, k)) on one of `workers` threads: embree and most numpy work
+    release the GIL. Small chunks keep every temporary array in cache (1M-ray chunks were 1.7x
+    slower, measured). Each chunk draws from its own seeded stream, so G does not depend on
+    thread timing.
+    """
     n = len(atlas)
     pts = receiver_points(atlas, index, q)
+    _ = atlas.grid  # build the lookup once, before the threads need it
     offset = 1e-6 * index.surfaces.extent
-    rng = np.random.default_rng(seed)
     m = len(pts.owner)
-    rows, cols, vals = [], [], []
     step = max(1, chunk_rays // rays_per_point)
-    for s0 in range(0, m, step):
-        sl = slice(s0, min(m, s0 + step))
+    starts = list(range(0, m, step))
+
+    def chunk(k: int):
+        sl = slice(starts[k], min(m, starts[k] + step))
+        rng = np.random.default_rng([seed, k])
         nrm = pts.normals[sl]
         dirs = cosine_directions(nrm, rays_per_point, rng).reshape(-1, 3)
         origins = np.repeat(pts.points[sl] + offset * nrm, rays_per_point, axis=0)
@@ -121,12 +132,17 @@ def gather_transport(
         a = alpha_at(atlas, index, hp, hit_tri[hit], np.where(facing < 0, 1, -1)).tocoo()
         owner = np.repeat(pts.owner[sl], rays_per_point)[hit]
         ray_w = np.repeat(pts.weight[sl] / rays_per_point, rays_per_point)[hit]
+        # summed per (h, k) within the chunk: memory follows G, not rays
         part = coo_matrix((a.data * ray_w[a.row], (owner[a.row], a.col)), shape=(n, n)).tocsr().tocoo()
-        rows.append(part.row)  # summed per (h, k) within the chunk: memory follows G, not rays
-        cols.append(part.col)
-        vals.append(part.data)
+        return part.row, part.col, part.data, sl.stop
+
+    rows, cols, vals = [], [], []
+    for r, c, v, done in threaded(chunk, len(starts), workers):
+        rows.append(r)
+        cols.append(c)
+        vals.append(v)
         if progress is not None:
-            progress(sl.stop / m)
+            progress(done / m)  # on the calling thread: a cancel raised here stops the pool
     G = coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)).tocsc()
     rho = np.zeros((n, 3))
     np.add.at(rho, pts.owner, index.surfaces.reflectance[pts.triangle] * pts.weight[:, None])

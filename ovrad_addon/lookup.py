@@ -1,0 +1,118 @@
+"""Which patches may contain a surface point: a uniform grid per sheet, hashed into one sorted key table.
+
+alpha at a point needs every patch covering it. A patch can only cover points of its own sheet,
+near its plane and within its bounding ball, so each patch is registered in the cells of its
+sheet's grid that meet both its ball and the slab |n . (x - c)| <= thickness around its plane.
+A point then looks up its sheet's cell (one binary search in the sorted keys) and gets a short
+list of same-sheet candidates. Cells are half a typical bounding radius wide (per sheet, so a
+finely patched object next to a coarse one gets its own cell size): a point meets about three
+candidates where a nearest-centres query meets eight, and only same-sheet ones.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .support import RIM_TOLERANCE
+
+CELLS_PER_RADIUS = 2.0
+_MAX_ENTRIES = 1 << 22  # cell-patch tests per build step, bounding temporary memory
+
+
+@dataclass(frozen=True)
+class PatchGrid:
+    """origin (S, 3), cell (S,), dims (S, 3) and key offset (S,) per sheet; sorted unique cell keys
+    (K,), start (K + 1,) into patches: the patches registered in each cell."""
+
+    origin: np.ndarray
+    cell: np.ndarray
+    dims: np.ndarray
+    offset: np.ndarray
+    keys: np.ndarray
+    start: np.ndarray
+    patches: np.ndarray
+
+    @classmethod
+    def build(cls, atlas, cells_per_radius: float = CELLS_PER_RADIUS) -> PatchGrid:
+        n = len(atlas)
+        sheet = np.asarray(atlas.sheet, np.int64)
+        S = int(sheet.max()) + 1 if n else 0
+        br = atlas.bounding_radii * (1.0 + 10.0 * RIM_TOLERANCE)  # rim points count as inside
+        c = atlas.centers
+        cell = np.ones(S)
+        origin = np.zeros((S, 3))
+        dims = np.ones((S, 3), np.int64)
+        for s in np.unique(sheet):
+            on = sheet == s
+            cell[s] = max(float(np.median(br[on])) / cells_per_radius, 1e-300)
+            lo = (c[on] - br[on, None]).min(axis=0)
+            hi = (c[on] + br[on, None]).max(axis=0)
+            origin[s] = lo - 0.5 * cell[s]
+            dims[s] = np.floor((hi - origin[s]) / cell[s]).astype(np.int64) + 2
+        size = np.prod(dims, axis=1)
+        offset = np.concatenate([[0], np.cumsum(size)[:-1]]).astype(np.int64)
+        keys, owners = [], []
+        # cells of each patch's bounding box, tested against its ball and its plane slab
+        lo = np.floor((c - br[:, None] - origin[sheet]) / cell[sheet, None]).astype(np.int64)
+        hi = np.floor((c + br[:, None] - origin[sheet]) / cell[sheet, None]).astype(np.int64)
+        ext = hi - lo + 1
+        count = np.prod(ext, axis=1)
+        bounds = np.searchsorted(np.cumsum(count), np.arange(0, int(count.sum()), _MAX_ENTRIES), "right")
+        for a, b in zip(bounds, list(bounds[1:]) + [n], strict=True):
+            if a >= b:
+                continue
+            ids = np.arange(a, b)
+            cnt = count[ids]
+            p = np.repeat(ids, cnt)
+            local = np.arange(int(cnt.sum())) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+            e = ext[p]
+            plane = e[:, 0] * e[:, 1]
+            ijk = lo[p] + np.stack([local % e[:, 0], (local // e[:, 0]) % e[:, 1], local // plane], 1)
+            s = sheet[p]
+            h = cell[s]
+            box_lo = origin[s] + ijk * h[:, None]
+            near = c[p] - np.clip(c[p], box_lo, box_lo + h[:, None])
+            ball = np.einsum("ij,ij->i", near, near) <= br[p] ** 2
+            nrm = atlas.normals[p]
+            mid = box_lo + 0.5 * h[:, None] - c[p]
+            slab = np.abs(np.einsum("ij,ij->i", mid, nrm)) <= atlas.thickness[p] + 0.5 * h * np.abs(nrm).sum(
+                axis=1
+            )
+            keep = ball & slab
+            ijk, s = ijk[keep], s[keep]
+            d = dims[s]
+            keys.append(offset[s] + ijk[:, 0] + d[:, 0] * (ijk[:, 1] + d[:, 1] * ijk[:, 2]))
+            owners.append(p[keep])
+        key = np.concatenate(keys) if keys else np.zeros(0, np.int64)
+        owner = np.concatenate(owners) if owners else np.zeros(0, np.int64)
+        order = np.argsort(key, kind="stable")
+        key, owner = key[order], owner[order]
+        uniq, first = np.unique(key, return_index=True)
+        start = np.concatenate([first, [len(key)]]).astype(np.int64)
+        return cls(origin, cell, dims, offset, uniq, start, owner)
+
+    def candidates(self, points: np.ndarray, sheets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(row, patch) pairs: the patches of each point's sheet registered in its cell."""
+        pts = np.asarray(points, np.float64).reshape(-1, 3)
+        sheets = np.asarray(sheets, np.int64)
+        ok = (sheets >= 0) & (sheets < len(self.cell))
+        s = np.where(ok, sheets, 0)
+        ijk = np.floor((pts - self.origin[s]) / self.cell[s, None])
+        d = self.dims[s]
+        ok &= np.all((ijk >= 0) & (ijk < d), axis=1)
+        ijk = np.where(ok[:, None], ijk, 0).astype(np.int64)
+        key = self.offset[s] + ijk[:, 0] + d[:, 0] * (ijk[:, 1] + d[:, 1] * ijk[:, 2])
+        pos = np.minimum(np.searchsorted(self.keys, key), max(len(self.keys) - 1, 0))
+        if len(self.keys):
+            ok &= self.keys[pos] == key
+        else:
+            ok[:] = False
+        rows = np.flatnonzero(ok)
+        first = self.start[pos[rows]]
+        cnt = self.start[pos[rows] + 1] - first
+        total = int(cnt.sum())
+        r = np.repeat(rows, cnt)
+        at = np.arange(total) - np.repeat(np.cumsum(cnt) - cnt, cnt) + np.repeat(first, cnt)
+        return r, self.patches[at]
