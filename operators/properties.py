@@ -123,6 +123,17 @@ class OVRAD_PG_settings(bpy.types.PropertyGroup):
         max=4096,
         soft_max=1024,
     )
+    min_rays: IntProperty(
+        name="Minimum Rays",
+        description=(
+            "Transport rays cast at least, in all: a small atlas gets more surface samples and "
+            "rays per sample until it reaches this many (0: exactly Rays per Point)"
+        ),
+        default=_ENGINE.min_rays,
+        min=0,
+        max=1 << 28,
+        soft_max=1 << 26,
+    )
     bake_direct: BoolProperty(
         name="Sharp Direct Light",
         description=(
@@ -246,7 +257,10 @@ def atlas_settings(props: OVRAD_PG_settings, objects) -> AtlasSettings:
 def solve_settings(props: OVRAD_PG_settings) -> SolveSettings:
     """The frozen engine settings of a solve."""
     return SolveSettings(
-        tolerance=props.solve_tolerance, rule=props.solve_rule, rays_per_point=props.rays_per_point
+        tolerance=props.solve_tolerance,
+        rule=props.solve_rule,
+        rays_per_point=props.rays_per_point,
+        min_rays=props.min_rays,
     )
 
 

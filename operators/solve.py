@@ -193,19 +193,24 @@ def read_inputs(context, settings: SolveSettings | None = None, need_light: bool
 # --------------------------------------------------------------------------- the problem cache
 
 
-def cached_problem(inputs: SolveInputs, rays_per_point: int | None = None) -> Problem | None:
-    """The cached problem of these inputs (any ray count if rays_per_point is None), with the
+def transport_key(settings) -> tuple[int, int]:
+    """The solve settings the transport depends on: a cached problem is reused only if they match."""
+    return settings.rays_per_point, settings.min_rays
+
+
+def cached_problem(inputs: SolveInputs, transport: tuple[int, int] | None = None) -> Problem | None:
+    """The cached problem of these inputs (any ray counts if transport is None), with the
     current surfaces: their emission may differ, the engine reads it at each solve."""
     if _CACHE.get("key") != inputs.key:
         return None
-    if rays_per_point is not None and _CACHE["rays"] != rays_per_point:
+    if transport is not None and _CACHE["transport"] != transport:
         return None
     return replace(_CACHE["problem"], surfaces=inputs.surfaces)
 
 
 def remember(inputs: SolveInputs, problem: Problem) -> None:
     _CACHE.clear()
-    _CACHE.update(key=inputs.key, rays=inputs.settings.rays_per_point, problem=problem)
+    _CACHE.update(key=inputs.key, transport=transport_key(inputs.settings), problem=problem)
 
 
 def clear_cache() -> None:
@@ -317,7 +322,7 @@ class SolveJob:
         self._lock = threading.Lock()
         self._cancel = threading.Event()
         self.done = threading.Event()
-        self.problem = cached_problem(inputs, inputs.settings.rays_per_point)
+        self.problem = cached_problem(inputs, transport_key(inputs.settings))
         self.reused = self.problem is not None
         self.state = None
         self.error: Exception | None = None

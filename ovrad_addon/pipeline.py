@@ -34,7 +34,8 @@ class SolveSettings:
     batch: shooters per step; light_samples: emitter samples per receiver point (direct light);
     bake_samples: emitter samples per bake point (direct light at vertices and texels);
     smoothing: weight of the overlap-graph Laplacian added to C when solving (see regularised()),
-    0 solves equation (9) exactly."""
+    0 solves equation (9) exactly; min_rays: transport rays cast at least, in all (a small atlas
+    gets more receiver points and rays per point, see gather_transport)."""
 
     tolerance: float = 1e-3
     rule: str = "exact"
@@ -43,6 +44,7 @@ class SolveSettings:
     light_samples: int = 16
     smoothing: float = 0.1
     bake_samples: int = 64
+    min_rays: int = 1 << 22
 
     def __post_init__(self) -> None:
         if not (0 < self.tolerance < 1):
@@ -53,6 +55,8 @@ class SolveSettings:
             raise OvradError(f"smoothing must be in [0, 10], got {self.smoothing}")
         if not (1 <= self.rays_per_point <= 4096) or not (1 <= self.light_samples <= 1024):
             raise OvradError("rays_per_point must be in [1, 4096] and light_samples in [1, 1024]")
+        if not (0 <= self.min_rays <= 1 << 28):
+            raise OvradError(f"min_rays must be in [0, {1 << 28}], got {self.min_rays}")
         if not (1 <= self.bake_samples <= 4096):
             raise OvradError(f"bake_samples must be in [1, 4096], got {self.bake_samples}")
 
@@ -149,6 +153,7 @@ def prepare(
         index,
         settings.rays_per_point,
         progress=lambda f: _report(progress, 0.4 + 0.6 * f, "casting transport rays"),
+        min_rays=settings.min_rays,
     )
     seconds["transport"] = time.perf_counter() - t0
     return Problem(surfaces, atlas, index, C, T, T.rays, seconds)

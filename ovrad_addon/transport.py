@@ -36,9 +36,9 @@ class ReceiverPoints:
     triangle: np.ndarray
 
 
-def receiver_points(atlas, index, q: int = 4) -> ReceiverPoints:
+def receiver_points(atlas, index, q: int = 4, rings: int = 1) -> ReceiverPoints:
     """Coarse rule points on every support, weights rescaled to the support areas A_h of C."""
-    quad = patch_quadrature(atlas, index, np.arange(len(atlas)), q, rings=1)
+    quad = patch_quadrature(atlas, index, np.arange(len(atlas)), q, rings=rings)
     on = quad.weights > 0
     owner, w = quad.owner[on], quad.weights[on]
     coarse = np.bincount(owner, weights=w, minlength=len(atlas))
@@ -72,6 +72,28 @@ class Transport:
         return out
 
 
+POINT_RAYS = 256  # rays per receiver point a min_rays budget aims at before it adds points
+MAX_SCALE = 16
+
+
+def receiver_scale(points: int, min_rays: int) -> int:
+    """How much finer (angles and rings, each) the receiver rule is made so that `points` rule
+    points grow to min_rays / POINT_RAYS: 1 for atlases that have enough points already."""
+    want = min_rays / POINT_RAYS
+    if points <= 0 or points >= want:
+        return 1
+    return int(min(MAX_SCALE, np.ceil(np.sqrt(want / points))))
+
+
+def rays_for(points: int, rays_per_point: int, min_rays: int) -> int:
+    """Rays per receiver point: rays_per_point, or more (a square, for a full stratification
+    grid) when that casts fewer than min_rays in all."""
+    need = -(-min_rays // max(points, 1))
+    if need <= rays_per_point:
+        return rays_per_point
+    return int(np.ceil(np.sqrt(need))) ** 2
+
+
 def cosine_directions(normals: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
     """(m, count, 3) cosine-distributed unit directions around each normal, stratified per point."""
     m = len(normals)
@@ -102,8 +124,13 @@ def gather_transport(
     chunk_rays: int = 1 << 17,
     seed: int = 0,
     workers: int = WORKERS,
+    min_rays: int = 0,
 ) -> Transport:
     """Build G and rho by hemisphere gathering from every patch's receiver points.
+
+    min_rays: a floor on the rays cast in all. An atlas too small to reach it with q and
+    rays_per_point gets a finer receiver rule (more angles and rings, up to 16x each) and more
+    rays per point, so a small scene spends the budget on accuracy (receiver_rule).
 
     Receiver points go in chunks of about chunk_rays rays, each chunk cast and resolved (alpha
     at the hits, summed per (h, k)) on one of `workers` threads: embree and most numpy work
@@ -112,7 +139,9 @@ def gather_transport(
     thread timing.
     """
     n = len(atlas)
-    pts = receiver_points(atlas, index, q)
+    scale = receiver_scale(n * 4 * q * (1 if atlas.beta == "box" else 2), min_rays)
+    pts = receiver_points(atlas, index, q * scale, scale)
+    rays_per_point = rays_for(len(pts.owner), rays_per_point, min_rays)
     _ = atlas.grid  # build the lookup once, before the threads need it
     offset = 1e-6 * index.surfaces.extent
     m = len(pts.owner)

@@ -75,6 +75,7 @@ OPTIONS = [
     ("solve", "--solver", dict(choices=("exact", "paper"), help="exact eq. (9) or the paper's rule")),
     ("solve", "--tolerance", dict(type=float, help="stop when unshot light < this fraction of the emitted")),
     ("solve", "--rays-per-point", dict(type=int, help="hemisphere rays per surface sample (form factors)")),
+    ("solve", "--min-rays", dict(type=int, help="transport rays cast at least, in all (0: no floor)")),
     ("bake", "--target", dict(choices=("vertex", "image"), default="vertex")),
     (
         "bake",
@@ -116,6 +117,8 @@ def parse(argv: list[str]) -> argparse.Namespace:
         v = getattr(args, name)
         if v is not None and v < 1:
             raise BatchError(f"--{name.replace('_', '-')} must be at least 1, got {v}")
+    if args.min_rays is not None and not 0 <= args.min_rays <= 1 << 28:
+        raise BatchError(f"--min-rays must be between 0 and {1 << 28}, got {args.min_rays}")
     if args.patch_size is not None and not args.patch_size > 0:
         raise BatchError(f"--patch-size must be positive, got {args.patch_size}")
     if args.tolerance is not None and not 0 < args.tolerance < 1:
@@ -169,7 +172,12 @@ def select(objects) -> None:
     bpy.context.view_layer.objects.active = objects[0] if objects else None
 
 
-SOLVE_PROPS = {"solver": "solve_rule", "tolerance": "solve_tolerance", "rays_per_point": "rays_per_point"}
+SOLVE_PROPS = {
+    "solver": "solve_rule",
+    "tolerance": "solve_tolerance",
+    "rays_per_point": "rays_per_point",
+    "min_rays": "min_rays",
+}
 
 
 def apply_settings(props, args) -> None:

@@ -66,6 +66,7 @@ def draw_solve(layout, props) -> None:
     col.prop(props, "solve_tolerance")
     col.prop(props, "solve_rule")
     col.prop(props, "rays_per_point")
+    col.prop(props, "min_rays")
     job = solve.running()
     if job is None:
         layout.operator("ovrad.solve", icon="LIGHT_SUN")
