@@ -204,9 +204,10 @@ def read_lamps(depsgraph, warnings: list[str] | None = None) -> tuple[Lamp, ...]
     """Lamps (engine Lamp, world space, Cycles units) of every light object in the view layer that renders.
 
     Power is W (point, spot, area) or W/m^2 (sun) times 2^exposure; colour times the blackbody
-    colour when Temperature is used; area sizes are scaled by the object's scale. What the engine
-    does not model (a point/spot radius, a sun's angle, an area lamp's spread, light node trees,
-    non-uniform spot scale) is approximated and named in `warnings`.
+    colour when Temperature is used; area sizes are scaled by the object's scale. A point or spot
+    radius (a sphere) and a sun's angle (a disk) give soft shadows. What the engine does not model
+    (an area lamp's spread, light node trees, non-uniform spot scale) is approximated and named in
+    `warnings`.
     """
     warnings = [] if warnings is None else warnings
     lamps = []
@@ -231,14 +232,9 @@ def read_lamps(depsgraph, warnings: list[str] | None = None) -> tuple[Lamp, ...]
             warnings.append(f"lamp '{obj.name}': its node tree is ignored (only power and colour are read)")
         common = dict(position=position, direction=direction, tangent=tangent, color=_light_color(light))
         if kind in ("POINT", "SPOT"):
-            if radius > 0:
-                warnings.append(
-                    f"lamp '{obj.name}' has radius {radius:g}: its soft shadows are approximated as hard "
-                    "(ovrad lamps are points)"
-                )
             power = _light_power(light, 0.0, np.pi * radius * radius if radius > 0 else 1.0)
             if kind == "POINT":
-                lamps.append(Lamp("POINT", power=power, **common))
+                lamps.append(Lamp("POINT", power=power, radius=radius, **common))
                 continue
             if not np.isclose(scale[0], scale[1], rtol=1e-4):
                 warnings.append(f"spot '{obj.name}' has a non-uniform scale: its cone is taken as round")
@@ -248,18 +244,14 @@ def read_lamps(depsgraph, warnings: list[str] | None = None) -> tuple[Lamp, ...]
                     power=power,
                     spot_size=float(light.spot_size),
                     spot_blend=float(light.spot_blend),
+                    radius=radius,
                     **common,
                 )
             )
         elif kind == "SUN":
             angle = float(getattr(light, "angle", 0.0))
-            if angle > np.radians(1.0):
-                warnings.append(
-                    f"sun '{obj.name}' has angle {np.degrees(angle):.1f} degrees: its soft shadows are "
-                    "approximated as hard"
-                )
             disk = np.pi * np.tan(0.5 * angle) ** 2 if angle > 0 else 1.0
-            lamps.append(Lamp("SUN", power=_light_power(light, 0.0, disk), **common))
+            lamps.append(Lamp("SUN", power=_light_power(light, 0.0, disk), angle=angle, **common))
         elif kind == "AREA":
             shape = light.shape
             size_x = float(light.size) * scale[0]

@@ -166,7 +166,7 @@ def direct_irradiance(
     if light.lamps:
         for c0 in range(0, len(pts), _CHUNK_RAYS):
             sl = slice(c0, c0 + _CHUNK_RAYS)
-            h, n = lamp_irradiance(light.lamps, pts[sl], nrm[sl], rays, surfaces.extent)
+            h, n = lamp_irradiance(light.lamps, pts[sl], nrm[sl], rays, surfaces.extent, light.samples)
             H[sl] += h
             cast += n
     if light.emitters is not None and np.any(light.emitters):

@@ -7,6 +7,10 @@ with a shadow ray per sample. Suns are directions with an irradiance instead.
 - Spot lamp: a point lamp times smoothstep((cos t - cos(size/2)) / ((1 - cos(size/2)) blend)),
   t the angle from the spot axis (the cone does not concentrate the power).
 - Sun of strength S (W/m^2): irradiance S cos(theta) where unshadowed.
+- A point or spot lamp with a radius R is a uniformly bright sphere, and a sun with an angle a
+  disk of that angular diameter: soft shadows. Unshadowed, a sphere above the horizon gives
+  exactly the point lamp's P cos(theta) / (4 pi d^2), and a sun disk S cos(theta); the shadow
+  rays then weigh which part of the source each point sees (soft_irradiance).
 - Area lamp of power P and area A: radiance P / (pi A) from its front side; each of its k
   samples carries I(omega) = P / (pi A) * (A / k) * cos(theta_lamp).
 """
@@ -44,6 +48,8 @@ class Lamp:
     shape: str = "SQUARE"
     size_x: float = 1.0
     size_y: float = 1.0
+    radius: float = 0.0
+    angle: float = 0.0
 
     def __post_init__(self) -> None:
         if self.kind not in LAMP_KINDS:
@@ -55,6 +61,13 @@ class Lamp:
             raise OvradError("lamp has NaN or infinite values")
         if self.power < 0 or min(self.color) < 0:
             raise OvradError("lamp power and colour must be non-negative")
+        if not (0.0 <= self.radius < np.inf) or not (0.0 <= self.angle <= np.pi):
+            raise OvradError("lamp radius must be >= 0 and sun angle within [0, 180] degrees")
+
+    @property
+    def soft(self) -> bool:
+        """A sphere (point, spot with a radius) or a sun disk (angle): sampled, soft shadows."""
+        return (self.kind in ("POINT", "SPOT") and self.radius > 0) or (self.kind == "SUN" and self.angle > 0)
 
     def size_area(self) -> float:
         """Emitting area of an area lamp."""
@@ -105,10 +118,94 @@ def shadow_origin(points: np.ndarray, normals: np.ndarray, directions: np.ndarra
     return points + eps * normals + 2.0 * eps * directions
 
 
+def cone_directions(axis: np.ndarray, cos_a: np.ndarray, count: int, rng) -> tuple[np.ndarray, np.ndarray]:
+    """Directions (m, k, 3) within the cones of half-angle a around unit axes (m, 3), and the sum
+    over each point's directions of their cosine to the axis (m,).
+
+    Rings of equal solid angle (midpoints in cos), each with equally spaced azimuths turned by a
+    random offset per point and ring: the components across the axis cancel exactly, so the
+    directions' mean is parallel to the axis, which soft_irradiance relies on.
+    """
+    m = len(axis)
+    n_r = max(1, int(np.sqrt(count)))
+    n_az = max(2, count // n_r)
+    cos_psi = 1.0 - (1.0 - cos_a)[:, None] * ((np.arange(n_r) + 0.5) / n_r)[None, :]  # (m, n_r)
+    sin_psi = np.sqrt(np.maximum(1.0 - cos_psi**2, 0.0))
+    phi = 2.0 * np.pi * (np.arange(n_az)[None, None, :] + rng.random((m, n_r, 1))) / n_az
+    helper = np.eye(3)[np.argmin(np.abs(axis), axis=1)]
+    t = np.cross(helper, axis)
+    t /= np.linalg.norm(t, axis=1, keepdims=True)
+    b = np.cross(axis, t)
+    cp, sp = cos_psi[..., None, None], sin_psi[..., None, None]
+    d = (
+        cp * axis[:, None, None]
+        + sp * np.cos(phi)[..., None] * t[:, None, None]
+        + sp * np.sin(phi)[..., None] * b[:, None, None]
+    )
+    return d.reshape(m, n_r * n_az, 3), n_az * cos_psi.sum(axis=1)
+
+
+def soft_irradiance(lamp: Lamp, pts, nrm, rays, eps: float, samples: int) -> tuple[np.ndarray, int]:
+    """Irradiance (m,) of a sphere lamp or a sun disk at points, with soft shadows; and rays cast.
+
+    With directions w_j spread evenly over the source's cone (cone_directions), the irradiance is
+    E_n sum_j max(0, n . w_j) V_j / sum_j (axis . w_j), E_n the irradiance at normal incidence
+    (P / (4 pi d^2) times the spot fall-off towards the centre, or the sun's strength). Unshadowed
+    and above the horizon this is exactly E_n cos(theta), the closed form; a source that sinks
+    below the horizon is cut by the max, one partly hidden is weighed by its visible directions.
+    Points go in chunks, each with its own seeded azimuth offsets.
+    """
+    out = np.zeros(len(pts))
+    cast = 0
+    step = max(1, (1 << 18) // max(samples, 1))
+    for c0 in range(0, len(pts), step):
+        sl = slice(c0, c0 + step)
+        out[sl], n = _soft_chunk(lamp, pts[sl], nrm[sl], rays, eps, samples, c0)
+        cast += n
+    return out, cast
+
+
+def _soft_chunk(lamp: Lamp, pts, nrm, rays, eps: float, samples: int, seed: int) -> tuple[np.ndarray, int]:
+    m = len(pts)
+    rng = np.random.default_rng(seed)
+    if lamp.kind == "SUN":
+        axis = np.broadcast_to(-np.asarray(lamp.direction, float) / np.linalg.norm(lamp.direction), pts.shape)
+        cos_a = np.full(m, np.cos(0.5 * lamp.angle))
+        e_n = np.full(m, lamp.power)
+        dist = None
+    else:
+        v = np.asarray(lamp.position, float) - pts
+        dist = np.sqrt(np.maximum(np.einsum("ij,ij->i", v, v), 1e-300))
+        axis = v / dist[:, None]
+        sin_a = np.minimum(lamp.radius / dist, 0.9999)  # inside the sphere: nearly the whole hemisphere
+        cos_a = np.sqrt(1.0 - sin_a**2)
+        e_n = lamp.power / (4.0 * np.pi * dist**2)
+        if lamp.kind == "SPOT":
+            spot = np.asarray(lamp.direction, float) / np.linalg.norm(lamp.direction)
+            e_n = e_n * spot_falloff(-(axis @ spot), lamp.spot_size, lamp.spot_blend)
+    dirs, norm = cone_directions(np.ascontiguousarray(axis), cos_a, samples, rng)
+    k = dirs.shape[1]
+    cos = np.einsum("mkj,mj->mk", dirs, nrm)
+    lit = (cos > 0) & (e_n[:, None] > 0)
+    r, j = np.nonzero(lit)
+    w = dirs[r, j]
+    if dist is None:
+        tmax = np.full(len(r), np.inf)
+    else:  # to the near side of the sphere along each direction
+        along = np.einsum("ij,ij->i", w, axis[r]) * dist[r]
+        tmax = along - np.sqrt(np.maximum(lamp.radius**2 - dist[r] ** 2 + along**2, 0.0))
+        tmax = tmax * (1 - 1e-6) - 3 * eps
+    blocked = rays.occluded(shadow_origin(pts[r], nrm[r], w, eps), w, tmax)
+    seen = np.zeros((m, k))
+    seen[r[~blocked], j[~blocked]] = cos[r[~blocked], j[~blocked]]
+    return e_n * seen.sum(axis=1) / norm, len(r)
+
+
 def lamp_irradiance(
-    lamps, points: np.ndarray, normals: np.ndarray, rays, extent: float
+    lamps, points: np.ndarray, normals: np.ndarray, rays, extent: float, samples: int = 16
 ) -> tuple[np.ndarray, int]:
-    """Direct irradiance (m, 3) in W/m^2 at points with unit normals, shadowed; and rays cast."""
+    """Direct irradiance (m, 3) in W/m^2 at points with unit normals, shadowed; and rays cast.
+    samples: shadow rays per point for a lamp with a radius or a sun with an angle."""
     pts = np.asarray(points, np.float64)
     nrm = np.asarray(normals, np.float64)
     total = np.zeros((len(pts), 3))
@@ -118,6 +215,11 @@ def lamp_irradiance(
         color = np.asarray(lamp.color, float)
         axis = np.asarray(lamp.direction, float)
         axis = axis / np.linalg.norm(axis)
+        if lamp.soft:
+            e, n = soft_irradiance(lamp, pts, nrm, rays, eps, samples)
+            total += e[:, None] * color
+            cast += n
+            continue
         if lamp.kind == "SUN":
             to_light = np.broadcast_to(-axis, pts.shape)
             cos = np.einsum("ij,ij->i", nrm, to_light)

@@ -74,6 +74,7 @@ class Transport:
 
 POINT_RAYS = 256  # rays per receiver point a min_rays budget aims at before it adds points
 MAX_SCALE = 16
+MAX_POINT_RAYS = 1 << 16  # one chunk's arrays stay within a few MB per point
 
 
 def receiver_scale(points: int, min_rays: int) -> int:
@@ -86,12 +87,14 @@ def receiver_scale(points: int, min_rays: int) -> int:
 
 
 def rays_for(points: int, rays_per_point: int, min_rays: int) -> int:
-    """Rays per receiver point: rays_per_point, or more (a square, for a full stratification
-    grid) when that casts fewer than min_rays in all."""
-    need = -(-min_rays // max(points, 1))
+    """Rays per receiver point: rays_per_point, or more when that casts fewer than min_rays in
+    all (at most MAX_POINT_RAYS); then a product a x b with a = floor(sqrt(need)) <= b, so the
+    strata form a near-square grid."""
+    need = min(-(-min_rays // max(points, 1)), MAX_POINT_RAYS)
     if need <= rays_per_point:
         return rays_per_point
-    return int(np.ceil(np.sqrt(need))) ** 2
+    a = int(np.sqrt(need))
+    return a * -(-need // a)
 
 
 def cosine_directions(normals: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:

@@ -76,14 +76,18 @@ def test_area_lamp_size_follows_object_scale_and_normalize(ovrad, fresh_scene):
     assert next(lamp for lamp in lamps if lamp.shape == "RECTANGLE").power == pytest.approx(60.0 * 1.2 * 0.2)
 
 
-def test_soft_shadows_and_sun_angle_are_named_as_approximated(ovrad, fresh_scene):
+def test_point_radius_and_sun_angle_are_read_for_soft_shadows(ovrad, fresh_scene):
     add_lamp("POINT", energy=10.0, shadow_soft_size=0.25)
+    add_lamp("SPOT", energy=20.0, shadow_soft_size=0.1)
     add_lamp("SUN", energy=3.0, angle=np.radians(10.0))
     add_lamp("POINT", name="Hidden", energy=10.0).hide_render = True
     lamps, warnings = read(ovrad)
-    assert sorted(lamp.kind for lamp in lamps) == ["POINT", "SUN"]  # the hidden one does not light
-    assert any("'Point' has radius 0.25" in w and "approximated as hard" in w for w in warnings)
-    assert any("'Sun' has angle 10.0" in w for w in warnings)
+    by_kind = {lamp.kind: lamp for lamp in lamps}
+    assert sorted(by_kind) == ["POINT", "SPOT", "SUN"]  # the hidden one does not light
+    assert by_kind["POINT"].radius == pytest.approx(0.25) and by_kind["POINT"].soft
+    assert by_kind["SPOT"].radius == pytest.approx(0.1)
+    assert by_kind["SUN"].angle == pytest.approx(np.radians(10.0)) and by_kind["SUN"].soft
+    assert not any("approximated" in w for w in warnings)
 
 
 def test_world_is_read_as_a_constant_colour_or_refused(ovrad, fresh_scene):

@@ -168,3 +168,45 @@ def test_an_emitter_of_more_triangles_than_samples_is_picked_by_power():
         assert cast == 200 * min(samples, len(pt))
         assert np.abs(H[:, 0] / exact - 1.0).max() < worst
         assert abs(H[:, 0].sum() / exact.sum() - 1.0) < 2e-3
+
+
+@pytest.fixture(scope="module")
+def half_shadowed_floor():
+    """A 4 m floor at z = 0 and a pure occluder over its half x < 0 at z = 1."""
+    pv, pt = scenes.plane(size=4.0, n=4)
+    occ_v, occ_t = scenes.quad([-3.0, -3.0, 1.0], [0.0, -3.0, 1.0], [0.0, 3.0, 1.0], [-3.0, 3.0, 1.0])
+    v = np.vstack([pv - [2.0, 2.0, 0.0], occ_v])
+    t = np.vstack([pt, occ_t + len(pv)])
+    return make_rays(v, t), float(np.ptp(v, axis=0).max())
+
+
+SOFT = {
+    # sphere of radius 0.3 at height 2 over the occluder's edge: penumbra about 0.3 m each side
+    "sphere": (Lamp("POINT", position=(0.0, 0.0, 2.0), power=400.0, radius=0.3), 0.45),
+    # sun straight down, 10 degrees wide: penumbra tan(5 deg) x 1 m = 0.09 m each side
+    "sun disk": (Lamp("SUN", direction=(0.0, 0.0, -1.0), power=3.0, angle=np.radians(10.0)), 0.15),
+}
+
+
+@pytest.mark.parametrize("name", sorted(SOFT))
+def test_soft_shadow_of_a_half_plane(half_shadowed_floor, name):
+    """Under the occluder's edge, directly below the source's centre, exactly half of the source
+    is hidden (the vertical plane through the edge halves it and its cosine weights): half the
+    closed-form irradiance. Beyond the penumbra, full light or none; across it, light grows."""
+    rays, extent = half_shadowed_floor
+    lamp, reach = SOFT[name]
+    x = np.linspace(-1.0, 1.0, 401)
+    pts = np.stack([x, np.zeros_like(x), np.zeros_like(x)], 1)
+    up = np.tile([0.0, 0.0, 1.0], (len(x), 1))
+    if lamp.kind == "SUN":
+        full = np.full(len(x), lamp.power)
+    else:
+        full = analytic.point_lamp_irradiance(lamp.power, lamp.position, pts, up)
+    H = lamp_irradiance((lamp,), pts, up, rays, extent, samples=64)[0][:, 0]
+    below = np.flatnonzero(x == 0.0)
+    np.testing.assert_allclose(H[below], 0.5 * full[below], rtol=1e-9)
+    np.testing.assert_allclose(H[x > reach], full[x > reach], rtol=1e-9)
+    assert np.all(H[x < -reach] == 0.0)
+    pen = np.abs(x) < reach
+    assert np.all(np.diff(H[pen] / full[pen]) >= -0.05)  # up to the 64-sample quadrature's steps
+    assert (0.0 < H[pen] / full[pen]).sum() > 10 and (H[pen] / full[pen] < 1.0).sum() > 10  # soft, not hard
