@@ -79,10 +79,12 @@ def test_options_reach_atlas_solve_and_bake(ovrad, run_blender, tmp_path):
     out, report = tmp_path / "o.blend", tmp_path / "r.json"
     proc = batch(run_blender, CORNELL, "--patch-size", "0.12", "--overlap", "1.5", "--beta", "box",
                  "--solver", "exact", "--tolerance", "0.01", "--attribute", "light", "--domain", "CORNER",
-                 "--quantity", "irradiance", "--output", out, "--report", report)  # fmt: skip
+                 "--quantity", "irradiance", "--min-rays", "0", "--rays-per-point", "8",
+                 "--output", out, "--report", report)  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     r = json.loads(report.read_text())
     assert (r["beta"], r["solver"], r["overlap"], r["quantity"]) == ("box", "exact", 1.5, "irradiance")
+    assert r["rays"] < 1_000_000  # no 4.2 M-ray floor: 8 rays per point, plus the shadow rays
     assert r["tolerance"] == pytest.approx(0.01) and r["unshot_fraction"] <= 0.01
     assert 120 <= r["patches"] <= 260  # 0.12 m patches on about 1.9 m^2
     attrs, _ = inspect(run_blender, out)
@@ -162,6 +164,7 @@ def test_in_place_overwrites_only_when_asked(ovrad, run_blender, tmp_path):
         (["--output", "{tmp}/o.blend", "--beta", "wide"], "argument --beta: invalid choice: 'wide'"),
         (["--output", "{tmp}/o.blend", "--tolerance", "2"], "--tolerance must be between 0 and 1"),
         (["--output", "{tmp}/o.blend", "--overlap", "9"], "--overlap must be between 1 and 4"),
+        (["--output", "{tmp}/o.blend", "--min-rays", "-5"], "--min-rays must be between 0 and"),
         (["--output", "{tmp}/o.blend", "--in-place"], "--output and --in-place exclude each other"),
         ([], "nothing would be saved: give --output"),
         (["--output", "{tmp}/o.txt"], "--output must be a .blend file"),
