@@ -8,7 +8,7 @@ from concurrent.futures import ThreadPoolExecutor
 WORKERS = 2
 
 
-def threaded(work: Callable, count: int, workers: int = 2):
+def threaded(work: Callable, count: int, workers: int = WORKERS):
     """Yield work(0), ..., work(count - 1) in order, computed on `workers` threads.
 
     If the consumer stops early (an exception such as a cancel raised from a progress callback,

@@ -133,7 +133,7 @@ def gather_transport(
 
     min_rays: a floor on the rays cast in all. An atlas too small to reach it with q and
     rays_per_point gets a finer receiver rule (more angles and rings, up to 16x each) and more
-    rays per point, so a small scene spends the budget on accuracy (receiver_rule).
+    rays per point, so a small scene spends the budget on accuracy (receiver_scale, rays_for).
 
     Receiver points go in chunks of about chunk_rays rays, each chunk cast and resolved (alpha
     at the hits, summed per (h, k)) on one of `workers` threads: embree and most numpy work
