@@ -1,6 +1,8 @@
 """The whole engine solve (prepare -> solve -> reconstruct) against closed forms: lamps on a plane,
 the furnace, and scale invariance of the Cornell box."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from reference import analytic
@@ -61,28 +63,6 @@ LAMPS = {
         Lamp("SUN", direction=(0.3, 0.1, -1.0), power=3.0),
         lambda p: analytic.sun_irradiance(3.0, -np.array([0.3, 0.1, -1.0]), up),
     ),
-    # sources with a size: a sphere above the horizon lights a plane exactly as a point lamp of
-    # the same power, and a sun disk as a sun; only their shadows are soft (test_direct.py)
-    "point with radius": (
-        Lamp("POINT", position=(0.3, -0.2, 1.0), power=500.0, radius=0.25),
-        lambda p: analytic.point_lamp_irradiance(500.0, (0.3, -0.2, 1.0), p, up),
-    ),
-    "spot with radius": (
-        Lamp(
-            "SPOT",
-            position=(0, 0, 1.5),
-            direction=(0, 0, -1),
-            power=800.0,
-            spot_size=np.radians(120),
-            spot_blend=1.0,
-            radius=0.3,
-        ),
-        lambda p: analytic.spot_lamp_irradiance(800.0, np.radians(120), 1.0, (0, 0, 1.5), (0, 0, -1), p, up),
-    ),
-    "sun with angle": (
-        Lamp("SUN", direction=(0.3, 0.1, -1.0), power=3.0, angle=np.radians(10.0)),
-        lambda p: analytic.sun_irradiance(3.0, -np.array([0.3, 0.1, -1.0]), up),
-    ),
     "area": (
         Lamp(
             "AREA",
@@ -96,6 +76,12 @@ LAMPS = {
         lambda p: analytic.area_lamp_rect_irradiance(300.0, 0.6, 0.4, (0, 0, 0.8), p, up),
     ),
 }
+
+
+# Sources with a size: a sphere above the horizon lights a plane exactly as a point lamp of the
+# same power, and a sun disk as a sun; only their shadows are soft (test_direct.py).
+for _kind, _size in (("point", dict(radius=0.25)), ("spot", dict(radius=0.3)), ("sun", dict(angle=0.17))):
+    LAMPS[f"{_kind} with a size"] = (replace(LAMPS[_kind][0], **_size), LAMPS[_kind][1])
 
 
 @pytest.mark.parametrize("kind", sorted(LAMPS))
