@@ -67,21 +67,14 @@ def pair_beta(patches, idx, points, normals, sheets, beta: str) -> tuple[np.ndar
     # its thickness off it
     br = patches.bounding_radii[i] * (1.0 + 10.0 * RIM_TOLERANCE)
     near = np.einsum("ij,ij->i", rel, rel) <= br * br + patches.thickness[i] ** 2
-    cand, i, rel = cand[near], i[near], rel[near]
-    x = np.einsum("ij,ij->i", rel, patches.tangents[i])
-    y = np.einsum("ij,ij->i", rel, patches.bitangents[i])
-    n_i = patches.normals[i]
-    h = np.einsum("ij,ij->i", rel, n_i)
-    inside, bb = beta_of(patches, i, x, y, beta)
-    cos = np.einsum("ij,ij->i", normals[cand], n_i)
-    ok = inside & (cos >= patches.min_cos[i]) & (np.abs(h) <= patches.thickness[i])
-    member[cand] = ok
-    b[cand] = np.where(ok, bb, 0.0)
+    cand = cand[near]
+    member[cand], b[cand] = _same_sheet_beta(patches, i[near], points[cand], normals[cand], beta)
     return member, b
 
 
 def _same_sheet_beta(patches, i, points, normals, beta: str) -> tuple[np.ndarray, np.ndarray]:
-    """pair_beta for pairs on one sheet and near each other: no pre-filter, one pass of the full test."""
+    """The full membership test and beta for pairs already known to share their sheet (the
+    candidates of a PatchGrid, or what pair_beta's rejections leave)."""
     rel = points - patches.centers[i]
     x = np.einsum("ij,ij->i", rel, patches.tangents[i])
     y = np.einsum("ij,ij->i", rel, patches.bitangents[i])
