@@ -41,16 +41,21 @@ class PatchGrid:
         S = int(sheet.max()) + 1 if n else 0
         br = atlas.bounding_radii * (1.0 + 10.0 * RIM_TOLERANCE)  # rim points count as inside
         c = atlas.centers
+        # per sheet, without a loop over sheets: the median bounding radius (patches sorted by
+        # sheet, then radius) sets the cell size, and the patches' boxes set the grid's extent
+        order = np.lexsort((br, sheet))
+        count = np.bincount(sheet, minlength=S)
+        first = np.concatenate([[0], np.cumsum(count)[:-1]])
+        has = count > 0
+        mid = br[order][first[has] + (count[has] - 1) // 2] + br[order][first[has] + count[has] // 2]
         cell = np.ones(S)
-        origin = np.zeros((S, 3))
-        dims = np.ones((S, 3), np.int64)
-        for s in np.unique(sheet):
-            on = sheet == s
-            cell[s] = max(float(np.median(br[on])) / cells_per_radius, 1e-300)
-            lo = (c[on] - br[on, None]).min(axis=0)
-            hi = (c[on] + br[on, None]).max(axis=0)
-            origin[s] = lo - 0.5 * cell[s]
-            dims[s] = np.floor((hi - origin[s]) / cell[s]).astype(np.int64) + 2
+        cell[has] = np.maximum(0.5 * mid / cells_per_radius, 1e-300)
+        lo = np.full((S, 3), np.inf)
+        hi = np.full((S, 3), -np.inf)
+        np.minimum.at(lo, sheet, c - br[:, None])
+        np.maximum.at(hi, sheet, c + br[:, None])
+        origin = np.where(has[:, None], lo - 0.5 * cell[:, None], 0.0)
+        dims = np.where(has[:, None], np.floor((hi - origin) / cell[:, None]) + 2, 1).astype(np.int64)
         size = np.prod(dims, axis=1)
         offset = np.concatenate([[0], np.cumsum(size)[:-1]]).astype(np.int64)
         keys, owners = [], []
