@@ -181,8 +181,9 @@ def vertex_table(objects) -> dict:
     }
 
 
-def setup_cycles(scene, samples: int, seed: int = 0, threads: int = 0) -> None:
-    """Cycles as a converging reference: no adaptive sampling, no denoising, no clamps, 64 diffuse bounces."""
+def setup_cycles(scene, samples: int, seed: int = 0, threads: int = 0, keep_world: bool = False) -> None:
+    """Cycles as a converging reference: no adaptive sampling, no denoising, no clamps, 64 diffuse
+    bounces; the world is made black unless keep_world (scenes lit by the sky)."""
     scene.render.engine = "CYCLES"
     c = scene.cycles
     c.device = "CPU"
@@ -208,7 +209,7 @@ def setup_cycles(scene, samples: int, seed: int = 0, threads: int = 0) -> None:
     b.use_pass_direct = b.use_pass_indirect = b.use_pass_color = True
     b.use_pass_emit = False
     b.use_clear = True
-    if scene.world is not None:
+    if scene.world is not None and not keep_world:
         scene.world.color = (0, 0, 0)
         bg = scene.world.node_tree.nodes.get("Background") if scene.world.node_tree else None
         if bg is not None:
@@ -218,13 +219,15 @@ def setup_cycles(scene, samples: int, seed: int = 0, threads: int = 0) -> None:
 BAKE_ATTRIBUTE = "cycles_bake"
 
 
-def cycles_vertex_bake(objects, samples: int, seed: int = 0) -> tuple[np.ndarray, float]:
+def cycles_vertex_bake(
+    objects, samples: int, seed: int = 0, keep_world: bool = False
+) -> tuple[np.ndarray, float]:
     """Cycles DIFFUSE bake (direct + indirect + colour) to a POINT colour attribute of every object.
 
     Returns (radiance (V, 3) in vertex_table order, seconds of the bake call).
     """
     scene = bpy.context.scene
-    setup_cycles(scene, samples, seed)
+    setup_cycles(scene, samples, seed, keep_world=keep_world)
     for obj in objects:
         mesh = obj.data
         old = mesh.color_attributes.get(BAKE_ATTRIBUTE)

@@ -1,0 +1,459 @@
+"""The real-scenes set: small scenes of the kinds users bring, built in code (bpy), one per class.
+
+Each builder fills an empty factory file with one class of scene that broke ovrad once (see the
+README's "Real scenes" table): a partition with a doorway, a box resting on a floor that runs under
+it and a shelf against a wall, an emitter filling an opening of the ceiling, linked duplicates,
+collection instances, a textured floor, and sky light through a window (constant and HDR).
+Rooms are one welded-free mesh per surface grid (every vertex lies on one planar face, as in the
+Cornell benchmark), furniture is welded like a modeller's cube. Every vertex of every baked mesh
+is scored: vertices under a resting box (truth 0), on edges and on rims included. Only emitters
+are not scored (Cycles bakes their reflected light, ovrad adds their emission).
+
+    scripts/blender -b --python-exit-code 1 -P scripts/make_real_scenes.py -- --output-dir scenes/real
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import bpy
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENE_DIR = ROOT / "scenes" / "real"
+SPACING = 0.1  # m: grid cell of room surfaces (a 3 m room: about 5 000 vertices)
+
+WHITE = (0.75, 0.75, 0.75)
+WARM = (0.8, 0.55, 0.35)
+BLUE = (0.25, 0.35, 0.7)
+
+
+# --------------------------------------------------------------------------- materials
+
+
+def _tree(id_data):
+    if id_data.node_tree is None:
+        id_data.use_nodes = True  # Blender < 5.0
+    return id_data.node_tree
+
+
+def diffuse(name: str, colour) -> bpy.types.Material:
+    """Principled BSDF as a plain Lambert surface (roughness 1, no specular)."""
+    mat = bpy.data.materials.new(name)
+    mat.diffuse_color = (*colour, 1.0)
+    bsdf = next(n for n in _tree(mat).nodes if n.bl_idname == "ShaderNodeBsdfPrincipled")
+    bsdf.inputs["Base Color"].default_value = (*colour, 1.0)
+    bsdf.inputs["Roughness"].default_value = 1.0
+    (bsdf.inputs.get("Specular IOR Level") or bsdf.inputs.get("Specular")).default_value = 0.0
+    return mat
+
+
+def emission(name: str, radiance) -> bpy.types.Material:
+    """An Emission shader of colour x strength = radiance."""
+    strength = max(radiance)
+    mat = bpy.data.materials.new(name)
+    tree = _tree(mat)
+    for n in list(tree.nodes):
+        if n.bl_idname != "ShaderNodeOutputMaterial":
+            tree.nodes.remove(n)
+    out = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial")
+    emit = tree.nodes.new("ShaderNodeEmission")
+    emit.inputs["Color"].default_value = (*(c / strength for c in radiance), 1.0)
+    emit.inputs["Strength"].default_value = strength
+    tree.links.new(emit.outputs["Emission"], out.inputs["Surface"])
+    return mat
+
+
+def checker_image(name: str, size: int = 64, cells: int = 8) -> bpy.types.Image:
+    """A packed sRGB checker of a warm and a blue colour (8-bit, as a PNG texture would be)."""
+    img = bpy.data.images.new(name, size, size, alpha=False)
+    y, x = np.mgrid[0:size, 0:size] * cells // size
+    odd = ((x + y) % 2).astype(bool)
+    # sRGB-encoded values (what an 8-bit texture stores); Cycles decodes them to linear.
+    a, b = np.array([0.9, 0.75, 0.55]), np.array([0.35, 0.45, 0.75])
+    rgb = np.where(odd[..., None], a, b)
+    px = np.concatenate([rgb, np.ones((size, size, 1))], axis=-1).astype(np.float32)
+    img.pixels.foreach_set(px.ravel())
+    img.colorspace_settings.name = "sRGB"
+    img.pack()
+    return img
+
+
+def textured(name: str, image) -> bpy.types.Material:
+    """Principled BSDF whose Base Color is an Image Texture through the mesh's UV map."""
+    mat = diffuse(name, (0.8, 0.8, 0.8))
+    tree = mat.node_tree
+    bsdf = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeBsdfPrincipled")
+    tex = tree.nodes.new("ShaderNodeTexImage")
+    tex.image = image
+    tex.interpolation = "Closest"
+    uv = tree.nodes.new("ShaderNodeUVMap")
+    tree.links.new(uv.outputs["UV"], tex.inputs["Vector"])
+    tree.links.new(tex.outputs["Color"], bsdf.inputs["Base Color"])
+    return mat
+
+
+def world(scene, colour=(0.0, 0.0, 0.0), strength: float = 0.0, image=None) -> None:
+    """The world: a constant Background colour, or an equirectangular Environment Texture."""
+    w = bpy.data.worlds.new("World")
+    w.color = colour
+    tree = _tree(w)
+    bg = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeBackground")
+    bg.inputs["Color"].default_value = (*colour, 1.0)
+    bg.inputs["Strength"].default_value = strength
+    if image is not None:
+        env = tree.nodes.new("ShaderNodeTexEnvironment")
+        env.image = image
+        tree.links.new(env.outputs["Color"], bg.inputs["Color"])
+    scene.world = w
+
+
+def equirect_directions(width: int, height: int) -> np.ndarray:
+    """World directions (height, width, 3) of the pixel centres of an equirectangular image as
+    Cycles maps them: u = 0.5 - atan2(y, x) / 2pi, v = 0.5 + elevation / pi (row 0 at the bottom)."""
+    u = (np.arange(width) + 0.5) / width
+    v = (np.arange(height) + 0.5) / height
+    el, phi = np.meshgrid((v - 0.5) * np.pi, (0.5 - u) * 2 * np.pi, indexing="ij")
+    return np.stack([np.cos(el) * np.cos(phi), np.cos(el) * np.sin(phi), np.sin(el)], axis=-1)
+
+
+SUN_DIRECTION = (0.0, -math.cos(math.radians(35)), math.sin(math.radians(35)))  # from the south
+
+
+def sky_image(name: str, width: int = 128) -> bpy.types.Image:
+    """A float equirectangular sky: blue gradient above, dark ground below, a bright soft sun in
+    the south, 35 degrees up (it shines through the window of the sky scenes)."""
+    h = width // 2
+    img = bpy.data.images.new(name, width, h, alpha=False, float_buffer=True)
+    d = equirect_directions(width, h)
+    up = np.clip(d[..., 2:], 0, 1)
+    sky = (1 - up) * np.array([0.9, 0.95, 1.0]) + up * np.array([0.3, 0.5, 1.0])
+    rgb = np.where(d[..., 2:] > 0, sky, np.array([0.15, 0.12, 0.1]))
+    sun = np.exp((d @ np.array(SUN_DIRECTION) - 1.0) / 0.004)[..., None]
+    rgb = rgb + 30.0 * sun * np.array([1.0, 0.9, 0.75])
+    px = np.concatenate([rgb, np.ones((h, width, 1))], axis=-1).astype(np.float32)
+    img.pixels.foreach_set(px.ravel())
+    img.pack()
+    return img
+
+
+# --------------------------------------------------------------------------- geometry
+
+
+def grid(corners, spacing: float = SPACING) -> tuple[np.ndarray, np.ndarray]:
+    """A bilinear grid of quads over a quad (4, 3) (winding kept): vertices (V, 3), quads (Q, 4)."""
+    p0, p1, p2, p3 = (np.asarray(c, float) for c in corners)
+    nu = max(1, math.ceil(max(np.linalg.norm(p1 - p0), np.linalg.norm(p2 - p3)) / spacing - 1e-9))
+    nv = max(1, math.ceil(max(np.linalg.norm(p3 - p0), np.linalg.norm(p2 - p1)) / spacing - 1e-9))
+    u = np.linspace(0.0, 1.0, nu + 1)[:, None, None]
+    v = np.linspace(0.0, 1.0, nv + 1)[None, :, None]
+    pts = (1 - u) * (1 - v) * p0 + u * (1 - v) * p1 + u * v * p2 + (1 - u) * v * p3
+    idx = np.arange((nu + 1) * (nv + 1)).reshape(nu + 1, nv + 1)
+    quads = np.stack([idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]], axis=-1).reshape(-1, 4)
+    return pts.reshape(-1, 3), quads
+
+
+def mesh(name: str, quads_corners, material, spacing: float = SPACING, collection=None, uv: bool = False):
+    """One object of planar quads, each subdivided into its own grid (not welded to the others)."""
+    verts, faces, base = [], [], 0
+    for corners in quads_corners:
+        pts, q = grid(corners, spacing)
+        verts.append(pts)
+        faces.append(q + base)
+        base += len(pts)
+    me = bpy.data.meshes.new(name)
+    me.from_pydata(np.concatenate(verts).tolist(), [], np.concatenate(faces).tolist())
+    if uv:
+        layer = me.uv_layers.new(name="UVMap")
+        co = np.concatenate(verts)
+        loops = np.empty(len(me.loops), np.int32)
+        me.loops.foreach_get("vertex_index", loops)
+        layer.data.foreach_set("uv", (co[loops, :2] / 1.0).astype(np.float32).ravel())  # 1 m per tile
+    me.materials.append(material)
+    me.update()
+    obj = bpy.data.objects.new(name, me)
+    (collection or bpy.context.scene.collection).objects.link(obj)
+    return obj
+
+
+def box_mesh(name: str, size, material, cuts: int = 4) -> bpy.types.Mesh:
+    """A welded box mesh of size (x, y, z) m standing on z = 0 at the origin, faces split in a grid."""
+    import bmesh
+
+    me = bpy.data.meshes.new(name)
+    bm = bmesh.new()
+    bmesh.ops.create_cube(bm, size=1.0)
+    bmesh.ops.subdivide_edges(bm, edges=bm.edges[:], cuts=cuts, use_grid_fill=True)
+    for v in bm.verts:
+        v.co.x *= size[0]
+        v.co.y *= size[1]
+        v.co.z = (v.co.z + 0.5) * size[2]
+    bm.to_mesh(me)
+    bm.free()
+    me.materials.append(material)
+    return me
+
+
+def place(name: str, data, location, collection=None, rotation_z: float = 0.0):
+    obj = bpy.data.objects.new(name, data)
+    obj.location = location
+    obj.rotation_euler = (0.0, 0.0, rotation_z)
+    (collection or bpy.context.scene.collection).objects.link(obj)
+    return obj
+
+
+def room_faces(w: float, d: float, h: float, skip=()) -> dict:
+    """The six inward-facing faces of a room [0, w] x [0, d] x [0, h], by name."""
+    faces = {
+        "floor": [(0, 0, 0), (w, 0, 0), (w, d, 0), (0, d, 0)],
+        "ceiling": [(0, 0, h), (0, d, h), (w, d, h), (w, 0, h)],
+        "south": [(0, 0, 0), (0, 0, h), (w, 0, h), (w, 0, 0)],
+        "north": [(0, d, 0), (w, d, 0), (w, d, h), (0, d, h)],
+        "west": [(0, 0, 0), (0, d, 0), (0, d, h), (0, 0, h)],
+        "east": [(w, 0, 0), (w, 0, h), (w, d, h), (w, d, 0)],
+    }
+    return {k: v for k, v in faces.items() if k not in skip}
+
+
+def wall_with_hole(x0, x1, z0, z1, hole, y: float, facing: int) -> list:
+    """Quads of a wall in the plane y (x in [x0, x1], z in [z0, z1]) around a rectangular hole
+    (hx0, hx1, hz0, hz1); facing +1 (+Y) or -1."""
+    hx0, hx1, hz0, hz1 = hole
+    rects = [
+        (x0, hx0, z0, z1),
+        (hx1, x1, z0, z1),
+        (hx0, hx1, z0, hz0),
+        (hx0, hx1, hz1, z1),
+    ]
+    out = []
+    for a0, a1, b0, b1 in rects:
+        if a1 - a0 < 1e-9 or b1 - b0 < 1e-9:
+            continue
+        q = [(a0, y, b0), (a1, y, b0), (a1, y, b1), (a0, y, b1)]  # normal -Y
+        out.append(q if facing < 0 else q[::-1])
+    return out
+
+
+def area_lamp(scene, name: str, location, size: float, power: float, color=(1.0, 1.0, 1.0)):
+    data = bpy.data.lights.new(name, "AREA")
+    data.size = size
+    data.energy = power
+    data.color = color
+    obj = bpy.data.objects.new(name, data)
+    obj.location = location  # default orientation: shines down (-Z)
+    scene.collection.objects.link(obj)
+    return obj
+
+
+def camera(scene, location, target) -> None:
+    from mathutils import Vector
+
+    cam = bpy.data.cameras.new("Camera")
+    cam.lens = 18.0
+    obj = bpy.data.objects.new("Camera", cam)
+    obj.location = location
+    obj.rotation_euler = (Vector(target) - Vector(location)).to_track_quat("-Z", "Y").to_euler()
+    scene.collection.objects.link(obj)
+    scene.camera = obj
+
+
+# --------------------------------------------------------------------------- the scenes
+
+
+def _new_scene(name: str):
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+    scene = bpy.context.scene
+    scene.name = name
+    scene.render.engine = "CYCLES"
+    scene.render.resolution_x = scene.render.resolution_y = 384
+    world(scene)
+    return scene
+
+
+def doorway():
+    """Two 2.4 m rooms side by side, a 10 cm partition with the same doorway in both faces and
+    reveal faces between them; an area lamp in the first room only."""
+    scene = _new_scene("doorway")
+    white = diffuse("White", WHITE)
+    w, d, h, t = 2.4, 2.4, 2.4, 0.1
+    # Both rooms in one mesh: x from 0 to 2w + t, the partition at x in [w, w + t].
+    outer = room_faces(2 * w + t, d, h)
+    mesh("Rooms", list(outer.values()), white)
+    door = (0.8, 1.6, 0.0, 2.0)  # y range, z range of the doorway
+    faces = []
+    for x, facing in ((w, 1), (w + t, -1)):
+        # wall in the plane x, built in (y, z) then mapped: wall_with_hole works in x/z at fixed y.
+        for q in wall_with_hole(0.0, d, 0.0, h, door, 0.0, facing):
+            faces.append([(x, p[0], p[2]) for p in q])
+    y0, y1, _, z1 = door
+    # reveals: the doorway's jambs and lintel, facing into the opening
+    faces.append([(w, y0, 0), (w + t, y0, 0), (w + t, y0, z1), (w, y0, z1)])  # faces +Y
+    faces.append([(w, y1, 0), (w, y1, z1), (w + t, y1, z1), (w + t, y1, 0)])  # faces -Y
+    faces.append([(w, y0, z1), (w + t, y0, z1), (w + t, y1, z1), (w, y1, z1)])  # faces -Z
+    mesh("Partition", faces, white)
+    area_lamp(scene, "Lamp", (0.9, 1.2, h - 0.05), 0.6, 250.0)
+    camera(scene, (0.3, 0.2, 1.7), (2 * w, 1.6, 0.8))
+    return scene
+
+
+def contact():
+    """A room whose floor runs under a welded box resting on it, and a shelf touching a wall."""
+    scene = _new_scene("contact")
+    white, warm = diffuse("White", WHITE), diffuse("Warm", WARM)
+    w, d, h = 2.4, 2.4, 2.2
+    mesh("Room", list(room_faces(w, d, h).values()), white)
+    place("Box", box_mesh("Box", (0.6, 0.6, 0.6), warm), (1.4, 1.0, 0.0), rotation_z=0.3)
+    place("Shelf", box_mesh("Shelf", (0.8, 0.3, 0.05), white, cuts=3), (0.8, d - 0.15, 1.2))
+    area_lamp(scene, "Lamp", (1.0, 1.4, h - 0.05), 0.5, 180.0)
+    camera(scene, (0.2, 0.1, 1.6), (1.6, 1.6, 0.4))
+    return scene
+
+
+def ceiling_opening():
+    """A ceiling with a rectangular opening in which an emissive quad sits, coplanar."""
+    scene = _new_scene("ceiling_opening")
+    white = diffuse("White", WHITE)
+    w, d, h = 2.4, 2.4, 2.2
+    faces = room_faces(w, d, h, skip=("ceiling",))
+    mesh("Room", list(faces.values()), white)
+    hole = (0.9, 1.5, 0.9, 1.5)
+    ceiling = [[(p[0], p[2], h) for p in q] for q in wall_with_hole(0, w, 0, d, hole, 0.0, 1)]
+    mesh("Ceiling", ceiling, white)
+    x0, x1, y0, y1 = hole
+    mesh("Light", [[(x0, y0, h), (x0, y1, h), (x1, y1, h), (x1, y0, h)]], emission("Emit", (8.0, 8.0, 8.0)))
+    place("Box", box_mesh("Box", (0.5, 0.5, 0.8), diffuse("Warm", WARM)), (0.7, 1.5, 0.0))
+    camera(scene, (0.2, 0.1, 1.2), (1.4, 1.4, 1.6))
+    return scene
+
+
+def duplicates():
+    """Two benches sharing one mesh (linked duplicates), one under the lamp and one in a corner."""
+    scene = _new_scene("duplicates")
+    white, warm = diffuse("White", WHITE), diffuse("Warm", WARM)
+    w, d, h = 2.8, 2.4, 2.2
+    mesh("Room", list(room_faces(w, d, h).values()), white)
+    bench = box_mesh("Bench", (0.9, 0.35, 0.45), warm)
+    place("BenchA", bench, (0.9, 1.2, 0.0))
+    place("BenchB", bench, (2.2, 0.4, 0.0), rotation_z=math.pi / 2)
+    area_lamp(scene, "Lamp", (0.9, 1.2, h - 0.05), 0.5, 180.0)
+    camera(scene, (0.2, 0.1, 1.6), (1.6, 1.4, 0.4))
+    return scene
+
+
+def instances():
+    """Pillars that exist only as a collection instance (an empty instancing a hidden collection)."""
+    scene = _new_scene("instances")
+    white, blue = diffuse("White", WHITE), diffuse("Blue", BLUE)
+    w, d, h = 3.0, 2.4, 2.2
+    mesh("Room", list(room_faces(w, d, h).values()), white)
+    pillars = bpy.data.collections.new("Pillars")  # not linked to the scene: only instanced
+    pillar = box_mesh("Pillar", (0.25, 0.25, 1.6), blue, cuts=3)
+    for i, x in enumerate((0.0, 0.8)):
+        place(f"Pillar{i}", pillar, (x, 0.0, 0.0), collection=pillars)
+    empty = bpy.data.objects.new("PillarRow", None)
+    empty.instance_type = "COLLECTION"
+    empty.instance_collection = pillars
+    empty.location = (1.1, 1.0, 0.0)
+    scene.collection.objects.link(empty)
+    area_lamp(scene, "Lamp", (1.5, 1.6, h - 0.05), 0.5, 200.0)
+    camera(scene, (0.2, 0.1, 1.6), (1.8, 1.6, 0.5))
+    return scene
+
+
+def textured_floor():
+    """A floor whose Base Color is an sRGB checker image through its UV map."""
+    scene = _new_scene("textured")
+    white = diffuse("White", WHITE)
+    w, d, h = 2.4, 2.4, 2.2
+    faces = room_faces(w, d, h)
+    floor = faces.pop("floor")
+    mesh("Room", list(faces.values()), white)
+    mesh("Floor", [floor], textured("Checker", checker_image("checker.png")), uv=True)
+    area_lamp(scene, "Lamp", (1.2, 1.2, h - 0.05), 0.6, 200.0)
+    camera(scene, (0.2, 0.1, 1.6), (1.4, 1.4, 0.0))
+    return scene
+
+
+def _window_room(scene):
+    white = diffuse("White", WHITE)
+    w, d, h = 2.4, 2.4, 2.2
+    faces = room_faces(w, d, h, skip=("south",))
+    mesh("Room", list(faces.values()), white)
+    window = (0.7, 1.7, 0.8, 1.8)
+    mesh("WindowWall", wall_with_hole(0, w, 0, h, window, 0.0, 1), white)
+    camera(scene, (1.2, 2.3, 1.6), (1.2, 0.0, 0.6))
+
+
+def sky_constant():
+    """A room lit only by a constant world colour through a window."""
+    scene = _new_scene("sky_constant")
+    _window_room(scene)
+    world(scene, (0.6, 0.75, 1.0), 3.0)
+    return scene
+
+
+def sky_hdr():
+    """A room lit only by an equirectangular HDR sky (with a sun) through a window."""
+    scene = _new_scene("sky_hdr")
+    _window_room(scene)
+    world(scene, (0.0, 0.0, 0.0), 1.0, image=sky_image("sky.hdr"))
+    return scene
+
+
+SCENES = {
+    "doorway": doorway,
+    "contact": contact,
+    "ceiling_opening": ceiling_opening,
+    "duplicates": duplicates,
+    "instances": instances,
+    "textured": textured_floor,
+    "sky_constant": sky_constant,
+    "sky_hdr": sky_hdr,
+}
+
+
+def build(name: str, path: str | Path):
+    """Build scene `name`, save it to `path` (.blend) and open it there; returns the scene.
+
+    Reopened from the file: operators such as Cycles' bake need the context a loaded file has.
+    """
+    SCENES[name]()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    bpy.ops.wm.save_as_mainfile(filepath=str(path), compress=True, check_existing=False)
+    backup = Path(str(path) + "1")
+    if backup.exists():
+        backup.unlink()
+    bpy.ops.wm.open_mainfile(filepath=str(path))
+    return bpy.context.scene
+
+
+def baked_meshes(scene) -> list:
+    """What the batch bakes by default and the reference scores: every visible mesh object that does
+    not emit (emitters are flagged in the reference and not scored)."""
+    out = []
+    for obj in scene.objects:
+        if obj.type != "MESH" or obj.hide_render or "ovrad_source" in obj:
+            continue
+        if any(m is not None and _emits(m) for m in obj.data.materials):
+            continue
+        out.append(obj)
+    return sorted(out, key=lambda o: o.name)
+
+
+def _emits(mat) -> bool:
+    return mat.node_tree is not None and any(n.bl_idname == "ShaderNodeEmission" for n in mat.node_tree.nodes)
+
+
+def vertex_positions(objects) -> tuple[np.ndarray, np.ndarray]:
+    """World positions (V, 3) of the objects' vertices, in order, and the object index of each."""
+    pos, idx = [], []
+    for k, obj in enumerate(objects):
+        me = obj.data
+        co = np.empty(3 * len(me.vertices), np.float64)
+        me.vertices.foreach_get("co", co)
+        m = np.array(obj.matrix_world)
+        pos.append(co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3])
+        idx.append(np.full(len(me.vertices), k))
+    return np.concatenate(pos), np.concatenate(idx)
