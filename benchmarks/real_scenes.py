@@ -87,7 +87,7 @@ def textured(name: str, image) -> bpy.types.Material:
     bsdf = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeBsdfPrincipled")
     tex = tree.nodes.new("ShaderNodeTexImage")
     tex.image = image
-    tex.interpolation = "Closest"
+    tex.interpolation = "Linear"  # Blender's default: bilinear between texel centres
     uv = tree.nodes.new("ShaderNodeUVMap")
     tree.links.new(uv.outputs["UV"], tex.inputs["Vector"])
     tree.links.new(tex.outputs["Color"], bsdf.inputs["Base Color"])
