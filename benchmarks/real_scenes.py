@@ -457,3 +457,46 @@ def vertex_positions(objects) -> tuple[np.ndarray, np.ndarray]:
         pos.append(co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3])
         idx.append(np.full(len(me.vertices), k))
     return np.concatenate(pos), np.concatenate(idx)
+
+
+BAKED = "ovrad_radiance"  # the batch's default vertex-colour attribute
+
+
+def baked_values(scene, object_names, attribute: str = BAKED) -> tuple[np.ndarray, list[str]]:
+    """The POINT colour `attribute` (V, 3) of the named objects, in order (NaN where an object has
+    none), and the names of the objects without it."""
+    out, missing = [], []
+    for name in object_names:
+        obj = scene.objects[str(name)]
+        me = obj.data
+        attr = me.color_attributes.get(attribute)
+        if attr is None or attr.domain != "POINT":
+            out.append(np.full((len(me.vertices), 3), np.nan))
+            missing.append(str(name))
+            continue
+        a = np.empty(4 * len(me.vertices), np.float32)
+        attr.data.foreach_get("color", a)
+        out.append(a.reshape(-1, 4)[:, :3].astype(np.float64))
+    return np.concatenate(out), missing
+
+
+def score(reference: dict, values: np.ndarray) -> dict:
+    """Relative RMS error over every vertex that has a value (all channels), and per object."""
+    ref = reference["radiance"]
+    have = np.all(np.isfinite(values), axis=1)
+
+    def rel(mask):
+        d = values[mask] - ref[mask]
+        return float(np.sqrt(np.sum(d * d) / max(np.sum(ref[mask] ** 2), 1e-300)))
+
+    per_object = {}
+    for k, name in enumerate(reference["object_names"]):
+        m = (reference["object"] == k) & have
+        if m.any():
+            per_object[str(name)] = rel(m)
+    return {
+        "rel_rms": rel(have),
+        "scored": int(have.sum()),
+        "vertices": int(len(ref)),
+        "per_object": per_object,
+    }
