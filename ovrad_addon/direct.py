@@ -26,12 +26,14 @@ _CHUNK_RAYS = 1 << 20
 @dataclass(frozen=True)
 class DirectLight:
     """The light shot straight to bake points: lamps, the emitting triangles sampled with shadow
-    rays (emitters (T,) bool over surfaces.triangles), their emission scale, samples per point."""
+    rays (emitters (T,) bool over surfaces.triangles), their emission scale, samples per point;
+    gather_rays: final-gather rays per bake point for the indirect light (gather.py), 0 = off."""
 
     lamps: tuple[Lamp, ...] = ()
     emitters: np.ndarray | None = None
     emission_scale: float = 1.0
     samples: int = 64
+    gather_rays: int = 0
 
 
 def triangle_normals(surfaces: Surfaces, triangles: np.ndarray) -> np.ndarray:

@@ -1,0 +1,189 @@
+"""Final gather at bake points: the indirect irradiance arriving at a point, from hemisphere rays
+that look the solved radiosity up where they land.
+
+A bake point M reconstructs its indirect light from the patches covering it (sum_i alpha_i(M)
+(B_i - B^d_i)): that light is blurred to the patches' size, leaks under objects resting on a floor
+(a patch reaching under a block keeps the light of its visible part) and is too dark next to them.
+Gathering instead casts N cosine-distributed rays from M; with cosine-weighted directions the
+irradiance is pi x the mean incoming radiance, and a hit point N sends L = B(N) / pi towards M, so
+
+    E_ind(M) = mean over the rays of B_reflected(hit),  B_reflected = sum_k alpha_k(hit) (B_k - E_k)
+
+with alpha at the hit on the side the ray arrives at (the transport's machinery, lookup.py). E_k
+is the emission that M computes for itself as direct light (the emitters its shadow rays sample):
+an emitter sends back only what it reflects. The hit's reflected radiosity is taken whole, direct
+light included: the sun patch on the floor lights the wall as indirect light. Rays that escape, or
+land on a side without patches (the inside of a closed block), bring nothing.
+
+Noise-free and repeatable: every point uses the same stratified pattern of directions (a fixed
+scrambled Sobol' net), turned into the point's tangent frame. Points of one flat face share
+a frame, so they cast parallel rays: the result is as smooth as the radiosity it looks up.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable
+
+import numpy as np
+from scipy.stats import qmc
+
+from .lights import shadow_origin
+from .overlap import alpha_at, patch_average
+from .parallel import WORKERS, threaded
+
+GATHER_SEED = 3  # the fixed scrambling of the pattern: any seed, but always the same
+MAX_RAYS = 1 << 14
+INSIDE = 2e-5  # origins step this far (x scene extent) into their triangle, at most halfway to its centroid
+
+
+def strata(count: int) -> tuple[int, int]:
+    """A full na x nb grid of strata with na nb = count, na the largest divisor <= sqrt(count)."""
+    na = max(d for d in range(1, int(np.sqrt(count)) + 1) if count % d == 0)
+    return na, count // na
+
+
+def hemisphere_pattern(count: int, seed: int = GATHER_SEED) -> np.ndarray:
+    """(count, 3) cosine-distributed unit directions in a local frame (z = the normal), from the
+    first `count` points of a scrambled Sobol' sequence (fixed seed) mapped by Malley's method.
+
+    With count a power of two they form a (0, m, 2)-net: every na x nb grid of strata of the unit
+    square with na nb = count holds exactly one point, so they are at least as well stratified as a
+    jittered grid, and finer in every other aspect ratio too. Measured on the form factor from floor
+    points to a block's face (400 points): 11 / 5.1 / 3.4 % relative RMS error with 64 / 128 / 256
+    directions, where a jittered 8 x 8 ... 16 x 16 grid gives 13 / 8.9 / 6.8 %.
+    """
+    with warnings.catch_warnings():  # counts other than powers of two lose the net property only
+        warnings.simplefilter("ignore")
+        u = qmc.Sobol(2, scramble=True, seed=seed).random(count)
+    r = np.sqrt(u[:, 0])
+    phi = 2.0 * np.pi * u[:, 1]
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(1.0 - u[:, 0], 0.0))])
+
+
+def tangent_frames(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit tangents and bitangents (m, 3) of unit normals (m, 3), a function of the normal alone
+    (so equal normals get equal frames)."""
+    helper = np.eye(3)[np.argmin(np.abs(normals), axis=1)]
+    t = np.cross(helper, normals)
+    t /= np.linalg.norm(t, axis=1, keepdims=True)
+    return t, np.cross(normals, t)
+
+
+def sampled_emission(atlas, index, emitters: np.ndarray | None, scale: float = 1.0, q: int = 4) -> np.ndarray:
+    """(n, 3) exitance of each patch from the emitting triangles `emitters` ((T,) bool) only: the
+    emission a bake point computes as direct light, which a gather must not count again."""
+    surfaces = index.surfaces
+    if emitters is None or not np.any(emitters) or scale == 0:
+        return np.zeros((len(atlas), 3))
+    em = surfaces.emission * np.asarray(emitters, bool)[:, None]
+    return np.pi * scale * patch_average(atlas, index, em, q)
+
+
+def gather_indirect(
+    problem,
+    radiosity: np.ndarray,
+    emission: np.ndarray,
+    points,
+    normals,
+    rays: int,
+    triangles=None,
+    progress: Callable[[float], None] | None = None,
+    chunk_rays: int = 1 << 17,
+    workers: int = WORKERS,
+) -> np.ndarray:
+    """Indirect irradiance (m, 3) in W/m^2 at points (m, 3) with unit normals (m, 3).
+
+    radiosity (n, 3): the solved B; emission (n, 3): the per-patch exitance not to count at the
+    hits (what the points get as direct light: sampled_emission; zeros to count every emitter).
+    rays: directions per point (best a power of two, see hemisphere_pattern()). triangles (m,): the triangle
+    each point lies on; rays then start a hair inside it (inside()), which a point on a concave
+    edge needs (a wall's foot: else the rays aimed into the wall start behind it and see nothing).
+    Points go in chunks of about
+    chunk_rays rays on `workers` threads; progress(fraction) is called on the calling thread.
+    """
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    nrm = np.asarray(normals, np.float64).reshape(-1, 3)
+    m = len(pts)
+    out = np.zeros((m, 3))
+    if m == 0 or rays <= 0:
+        return out
+    if rays > MAX_RAYS:
+        raise ValueError(f"at most {MAX_RAYS} gather rays per point, got {rays}")
+    atlas, index = problem.atlas, problem.index
+    if triangles is not None:
+        pts = inside(index.surfaces, pts, triangles)
+    values = np.asarray(radiosity, np.float64) - np.asarray(emission, np.float64)
+    local = hemisphere_pattern(rays)
+    t_all, b_all = tangent_frames(nrm)
+    eps = 1e-6 * index.surfaces.extent
+    _ = atlas.grid  # build the lookup once, before the threads need it
+    step = max(1, chunk_rays // rays)
+    starts = list(range(0, m, step))
+
+    def chunk(k: int):
+        sl = slice(starts[k], min(m, starts[k] + step))
+        n = nrm[sl]
+        dirs = (
+            local[None, :, :1] * t_all[sl, None]
+            + local[None, :, 1:2] * b_all[sl, None]
+            + local[None, :, 2:] * n[:, None]
+        )
+        dirs = dirs.reshape(-1, 3)
+        origins = shadow_origin(np.repeat(pts[sl], rays, axis=0), np.repeat(n, rays, axis=0), dirs, eps)
+        t, tri = index.rays.closest_hit(origins, dirs, np.inf)
+        hit = np.flatnonzero(tri >= 0)
+        hp = origins[hit] + t[hit, None] * dirs[hit]
+        facing = np.einsum("ij,ij->i", dirs[hit], index.charts.normals[tri[hit]])
+        a = alpha_at(atlas, index, hp, tri[hit], np.where(facing < 0, 1, -1))
+        got = np.zeros((len(dirs), 3))
+        got[hit] = a @ values
+        return sl, got.reshape(-1, rays, 3).mean(axis=1)
+
+    for sl, e in threaded(chunk, len(starts), workers):
+        out[sl] = e
+        if progress is not None:
+            progress(sl.stop / m)
+    return out
+
+
+def inside(surfaces, points: np.ndarray, triangles) -> np.ndarray:
+    """Points (m, 3) moved towards the centroids of their triangles (m,) by INSIDE x the scene
+    extent, at most halfway: off every edge of the triangle, so off the plane of a neighbouring face
+    that meets it at a concave edge, by far more than the rays' start offset."""
+    c = surfaces.corners[np.asarray(triangles, np.int64)].mean(axis=1)
+    to = c - points
+    dist = np.linalg.norm(to, axis=1, keepdims=True)
+    step = np.minimum(INSIDE * surfaces.extent, 0.5 * dist)
+    return points + to * (step / np.maximum(dist, 1e-300))
+
+
+def unique_points(points, normals, tolerance: float) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of one representative per distinct (position, normal) and the inverse map (m,):
+    positions equal within about `tolerance` (a length) and normals within about 1e-6 are one.
+    A vertex bake gathers once per vertex and face normal, not once per triangle corner."""
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    n = np.asarray(normals, np.float64).reshape(-1, 3)
+    key = np.column_stack([np.round(p / max(tolerance, 1e-300)), np.round(n * 1e6)]).astype(np.int64)
+    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    return first, inverse.ravel()
+
+
+def gather_unique(
+    problem,
+    radiosity: np.ndarray,
+    emission: np.ndarray,
+    points,
+    normals,
+    rays: int,
+    triangles=None,
+    progress: Callable[[float], None] | None = None,
+) -> np.ndarray:
+    """gather_indirect once per distinct (position, normal) (within 1e-7 of the scene extent),
+    scattered back to every point: repeated points cost one gather (from the first one's
+    triangle)."""
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    nrm = np.asarray(normals, np.float64).reshape(-1, 3)
+    first, inverse = unique_points(pts, nrm, 1e-7 * problem.index.surfaces.extent)
+    tri = None if triangles is None else np.broadcast_to(np.asarray(triangles, np.int64), (len(pts),))[first]
+    return gather_indirect(problem, radiosity, emission, pts[first], nrm[first], rays, tri, progress)[inverse]

@@ -1,0 +1,221 @@
+"""The final gather (gather.py) against exact answers: the furnace at face, edge and corner points,
+the floor under a resting block, and Lambert's closed form for a point facing a uniform polygon."""
+
+import numpy as np
+import pytest
+
+import scenes
+from ovrad_addon.atlas import build_atlas
+from ovrad_addon.direct import triangle_normals
+from ovrad_addon.errors import OvradError
+from ovrad_addon.gather import (
+    gather_indirect,
+    gather_unique,
+    hemisphere_pattern,
+    sampled_emission,
+    strata,
+    unique_points,
+)
+from ovrad_addon.lights import Lamp
+from ovrad_addon.pipeline import SolveSettings, direct_light, irradiance_at, prepare, radiance_at, solve
+from ovrad_addon.settings import AtlasSettings
+from ovrad_addon.surfaces import Surfaces
+
+
+def polygon_form_factor(point, normal, polygon):
+    """Form factor from a differential area (point, unit normal) to a planar polygon (k, 3) wholly
+    above its tangent plane: Lambert's contour integral (1 / 2 pi) sum_i gamma_i n . u_i."""
+    r = np.asarray(polygon, float) - point
+    total = 0.0
+    for a, b in zip(r, np.roll(r, -1, axis=0), strict=True):
+        c = np.cross(a, b)
+        gamma = np.arctan2(np.linalg.norm(c), np.dot(a, b))
+        total += gamma * np.dot(normal, c) / np.linalg.norm(c)
+    return abs(total) / (2.0 * np.pi)
+
+
+def block_on_floor(lamp_height=None):
+    """A 4 x 4 floor (z = 0, rho 0.5) and a closed unit block [0, 1]^3 resting on it (rho 0.8)."""
+    floor_v, floor_t = scenes.plane(size=4.0, n=4)
+    parts = [(floor_v - [1.5, 1.5, 0.0], floor_t)] + scenes.box_faces((0, 0, 0), (1, 1, 1))
+    v, t, o = scenes.merge(parts, obj=[0] + [1] * 6)
+    rho = np.where(o[:, None] == 0, 0.5, 0.8) * np.ones((1, 3))
+    s = Surfaces.from_arrays(v, t, o, rho, object_names=["floor", "block"])
+    problem = prepare(s, build_atlas(s, AtlasSettings(patch_count=600)))
+    return s, problem
+
+
+def floor_triangles(s, points):
+    """The floor (object 0) triangle under each point (m, 3) on z = 0."""
+    ids = np.flatnonzero(s.object_index == 0)
+    c = s.corners[ids][None, :, :, :2]
+    p = np.asarray(points)[:, None, :2]
+    e1, e2, d = c[..., 1, :] - c[..., 0, :], c[..., 2, :] - c[..., 0, :], p - c[..., 0, :]
+    det = e1[..., 0] * e2[..., 1] - e1[..., 1] * e2[..., 0]
+    u = (d[..., 0] * e2[..., 1] - d[..., 1] * e2[..., 0]) / det
+    v = (e1[..., 0] * d[..., 1] - e1[..., 1] * d[..., 0]) / det
+    inside = (u >= 0) & (v >= 0) & (u + v <= 1)
+    return ids[np.argmax(inside, axis=1)]
+
+
+@pytest.fixture(scope="module")
+def block():
+    return block_on_floor()
+
+
+@pytest.fixture(scope="module")
+def furnace():
+    base = scenes.cube(inward=True)
+    s = Surfaces.from_arrays(base.vertices, base.triangles, reflectance=[0.9] * 3, emission=[2.0] * 3)
+    problem = prepare(s, build_atlas(s, AtlasSettings(patch_count=300)))
+    return s, problem, solve(problem, settings=SolveSettings(tolerance=1e-5))
+
+
+def test_pattern_is_a_full_grid_of_cosine_strata():
+    for count in (1, 16, 64, 128, 256):
+        na, nb = strata(count)
+        assert na * nb == count and na <= nb
+        d = hemisphere_pattern(count)
+        np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, rtol=1e-12)
+        assert np.all(d[:, 2] >= 0)
+        # one direction per stratum of (u1, u2) = (1 - z^2, azimuth / 2 pi)
+        u1 = 1.0 - d[:, 2] ** 2
+        u2 = (np.arctan2(d[:, 1], d[:, 0]) / (2 * np.pi)) % 1.0
+        cell = np.floor(u1 * na).astype(int) + na * np.floor(u2 * nb).astype(int)
+        assert sorted(cell) == list(range(count))
+    # a (0, m, 2)-net: one direction in every cell of every 2^a x 2^b grid with 2^(a+b) = 256
+    d = hemisphere_pattern(256)
+    u1, u2 = 1.0 - d[:, 2] ** 2, (np.arctan2(d[:, 1], d[:, 0]) / (2 * np.pi)) % 1.0
+    for a in range(9):
+        na, nb = 2**a, 2 ** (8 - a)
+        cell = np.floor(u1 * na).astype(int) + na * np.floor(u2 * nb).astype(int)
+        assert sorted(cell) == list(range(256))
+    # the same pattern every time: results are repeatable
+    np.testing.assert_array_equal(hemisphere_pattern(64), hemisphere_pattern(64))
+
+
+@pytest.mark.parametrize("rays", [16, 64])
+def test_furnace_is_exact_at_faces_edges_and_corners(furnace, rays):
+    s, problem, state = furnace
+    pts, tri = scenes.sample_surface(s, 1000, seed=4)
+    # every triangle corner (cube corners, concave edges) and every edge midpoint
+    c = s.corners
+    edge = 0.5 * (c + np.roll(c, -1, axis=1))
+    pts = np.concatenate([pts, c.reshape(-1, 3), edge.reshape(-1, 3)])
+    tri = np.concatenate([tri, np.repeat(np.arange(len(c)), 3), np.repeat(np.arange(len(c)), 3)])
+    light = direct_light(problem, (), SolveSettings(gather_rays=rays))
+    L = radiance_at(problem, state.radiosity, pts, tri, 1, state.first_shot, light)
+    # every ray from a point inside a closed room lands on it, and B = E / (1 - rho) = 20 pi there
+    np.testing.assert_allclose(L, 2.0 / (1 - 0.9), rtol=1e-3)
+    # the gathered irradiance itself: the large emitter is not sampled, so it counts in full
+    H = irradiance_at(problem, state.radiosity, pts, tri, 1, state.first_shot, light)
+    np.testing.assert_allclose(H, 20.0, rtol=1e-3)
+
+
+def test_floor_under_a_resting_block_gets_nothing(block):
+    s, problem = block
+    lamp = Lamp(kind="POINT", position=(0.5, 0.5, 3.0), power=200.0)
+    state = solve(problem, (lamp,))
+    under = np.array([[0.5, 0.5, 0.0], [0.1, 0.2, 0.0], [0.9, 0.95, 0.0]])
+    tri = floor_triangles(s, under)
+    on = direct_light(problem, (lamp,), SolveSettings(gather_rays=64))
+    off = direct_light(problem, (lamp,), SolveSettings(gather_rays=0))
+    leak = radiance_at(problem, state.radiosity, under, tri, 1, state.first_shot, off)
+    got = radiance_at(problem, state.radiosity, under, tri, 1, state.first_shot, on)
+    assert leak.max() > 0  # patches reaching under the block carry light there
+    np.testing.assert_array_equal(got, 0.0)
+    H = gather_indirect(
+        problem, state.radiosity, np.zeros_like(state.radiosity), under, [[0, 0, 1.0]] * 3, 64
+    )
+    np.testing.assert_array_equal(H, 0.0)
+
+
+@pytest.mark.parametrize("where", [(0.5, -0.3, 0.0), (0.2, -0.05, 0.0), (0.5, -1.2, 0.0), (-0.4, -0.4, 0.0)])
+def test_point_beside_the_block_matches_lambert(block, where):
+    """Block patches radiate a uniform B, the floor's nothing: E = B F(point -> visible block faces)."""
+    s, problem = block
+    atlas = problem.atlas
+    on_floor = (np.abs(atlas.centers[:, 2]) < 1e-9) & (atlas.normals[:, 2] > 0.5)
+    B = np.where(on_floor[:, None], 0.0, [1.0, 2.0, 3.0])
+    p = np.array(where, float)
+    faces = {  # outward faces of the block a floor point at y < 0 (and maybe x < 0) can see
+        "-y": [(0, 0, 0), (1, 0, 0), (1, 0, 1), (0, 0, 1)],
+        "-x": [(0, 0, 0), (0, 0, 1), (0, 1, 1), (0, 1, 0)],
+    }
+    want = polygon_form_factor(p, [0, 0, 1.0], faces["-y"])
+    if p[0] < 0:
+        want += polygon_form_factor(p, [0, 0, 1.0], faces["-x"])
+    tri = floor_triangles(s, p[None])
+    H = gather_indirect(problem, B, np.zeros_like(B), p[None], [[0, 0, 1.0]], 16384, tri)
+    # what is left is the pattern's own error on a face seen under 5-30 % of the cosine measure
+    # (0.1-0.4 % with 16 384 directions, measured; every hit on the block is covered)
+    np.testing.assert_allclose(H[0], want * np.array([1.0, 2.0, 3.0]), rtol=5e-3)
+
+
+@pytest.mark.parametrize("h", [0.2, 1.0])
+def test_point_facing_a_uniform_square(h):
+    """A point under a lone 2 x 2 square of uniform radiosity, facing it: E = B F (closed form)."""
+    v, t = scenes.plane(size=2.0, n=2, z=h)
+    s = Surfaces.from_arrays(v[:, [1, 0, 2]], t)  # swapped axes: the square faces down
+    problem = prepare(s, build_atlas(s, AtlasSettings(patch_count=200)))
+    p = np.array([[1.0, 1.0, 0.0], [0.3, 1.6, 0.0]])
+    square = [(0, 0, h), (2, 0, h), (2, 2, h), (0, 2, h)]
+    B = np.full((len(problem.atlas), 3), 5.0)
+    H = gather_indirect(problem, B, np.zeros_like(B), p, [[0, 0, 1.0]] * 2, 16384)
+    want = [5.0 * polygon_form_factor(q, [0, 0, 1.0], square) for q in p]
+    np.testing.assert_allclose(H[:, 0], want, rtol=3e-3)
+    # a point facing away from it gets nothing; the emission of the hit patches is left out
+    np.testing.assert_array_equal(gather_indirect(problem, B, B, p, [[0, 0, 1.0]] * 2, 64), 0.0)
+    np.testing.assert_array_equal(gather_indirect(problem, B, 0 * B, p, [[0, 0, -1.0]] * 2, 64), 0.0)
+
+
+def test_sampled_emitters_count_only_what_they_reflect():
+    """A small emitter in a closed room: its emission reaches bake points as direct light only."""
+    base = scenes.cube(inward=True)
+    light_v, light_t = scenes.plane(size=0.2, n=1, z=0.99)
+    v, t, o = scenes.merge(
+        [(base.vertices, base.triangles), (light_v[:, [1, 0, 2]] + [0.4, 0.4, 0], light_t)]
+    )
+    em = np.where(o[:, None] == 1, 10.0, 0.0) * np.ones((1, 3))
+    s = Surfaces.from_arrays(v, t, o, reflectance=[0.5] * 3, emission=em)
+    problem = prepare(s, build_atlas(s, AtlasSettings(patch_count=400)))
+    light = direct_light(problem, (), SolveSettings(gather_rays=64))
+    assert np.any(light.emitters)
+    own = sampled_emission(problem.atlas, problem.index, light.emitters, 1.0)
+    emitting = np.abs(problem.atlas.centers[:, 2] - 0.99) < 1e-9
+    np.testing.assert_allclose(own[emitting], 10.0 * np.pi, rtol=1e-9)
+    np.testing.assert_array_equal(own[~emitting], 0.0)
+    state = solve(problem, settings=SolveSettings(tolerance=1e-5))
+    # a point facing the emitter's back from below the ceiling: the light patches' reflected part
+    p = np.array([[0.5, 0.5, 0.5]])
+    with_light = gather_indirect(problem, state.radiosity, own, p, [[0, 0, 1.0]], 1024)
+    without = gather_indirect(problem, state.radiosity, state.radiosity, p, [[0, 0, 1.0]], 1024)
+    full = gather_indirect(problem, state.radiosity, 0 * own, p, [[0, 0, 1.0]], 1024)
+    assert np.all(without == 0)
+    assert np.all(with_light < full) and np.all(with_light > 0)
+
+
+def test_unique_points_gather_once():
+    base = scenes.cube(inward=True)
+    s = Surfaces.from_arrays(base.vertices, base.triangles, reflectance=[0.5] * 3, emission=[1.0] * 3)
+    problem = prepare(s, build_atlas(s, AtlasSettings(patch_count=100)))
+    state = solve(problem)
+    tri = np.repeat(np.arange(len(s.triangles)), 3)
+    pts = s.corners.reshape(-1, 3)
+    nrm = triangle_normals(s, tri)
+    first, inverse = unique_points(pts, nrm, 1e-9)
+    # a cube corner is shared by the triangles of 3 faces (3 normals); each face's corner appears
+    # once per triangle using it
+    assert len(first) == 24 * 3 // 3 or len(first) < len(pts)
+    np.testing.assert_array_equal(pts[first][inverse], pts)
+    zero = np.zeros_like(state.radiosity)
+    a = gather_unique(problem, state.radiosity, zero, pts, nrm, 64, tri)
+    b = gather_indirect(problem, state.radiosity, zero, pts[first], nrm[first], 64, tri[first])[inverse]
+    np.testing.assert_array_equal(a, b)
+
+
+def test_gather_rays_is_validated():
+    with pytest.raises(OvradError, match="gather_rays"):
+        SolveSettings(gather_rays=-1)
+    with pytest.raises(OvradError, match="gather_rays"):
+        SolveSettings(gather_rays=1 << 20)
