@@ -14,8 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix
 
+from .names import SHAPE_SQUARE
 from .parallel import WORKERS, threaded
-from .support import SHAPE_SQUARE, alpha_from_pairs, pair_beta
+from .support import alpha_from_pairs, pair_beta
 
 
 @dataclass(frozen=True)

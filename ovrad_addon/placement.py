@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
-from .support import SHAPE_DISK, SHAPE_SQUARE
+from .names import SHAPE_DISK, SHAPE_SQUARE
 
 
 @dataclass
