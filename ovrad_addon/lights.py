@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import OvradError
+from .geometry import tangent_frame
 
 LAMP_KINDS = ("POINT", "SPOT", "SUN", "AREA")
 AREA_SHAPES = ("SQUARE", "RECTANGLE", "DISK", "ELLIPSE")
@@ -132,10 +133,7 @@ def cone_directions(axis: np.ndarray, cos_a: np.ndarray, count: int, rng) -> tup
     cos_psi = 1.0 - (1.0 - cos_a)[:, None] * ((np.arange(n_r) + 0.5) / n_r)[None, :]  # (m, n_r)
     sin_psi = np.sqrt(np.maximum(1.0 - cos_psi**2, 0.0))
     phi = 2.0 * np.pi * (np.arange(n_az)[None, None, :] + rng.random((m, n_r, 1))) / n_az
-    helper = np.eye(3)[np.argmin(np.abs(axis), axis=1)]
-    t = np.cross(helper, axis)
-    t /= np.linalg.norm(t, axis=1, keepdims=True)
-    b = np.cross(axis, t)
+    t, b = tangent_frame(axis)
     cp, sp = cos_psi[..., None, None], sin_psi[..., None, None]
     d = (
         cp * axis[:, None, None]
