@@ -70,10 +70,16 @@ class Lamp:
         """A sphere (point, spot with a radius) or a sun disk (angle): sampled, soft shadows."""
         return (self.kind in ("POINT", "SPOT") and self.radius > 0) or (self.kind == "SUN" and self.angle > 0)
 
-    def size_area(self) -> float:
-        """Emitting area of an area lamp."""
-        sy = self.size_x if self.shape in ("SQUARE", "DISK") else self.size_y
-        return self.size_x * sy * (np.pi / 4 if self.shape in ("DISK", "ELLIPSE") else 1.0)
+
+def _lamp_sides(shape: str, size_x: float, size_y: float) -> tuple[float, float]:
+    """Lengths of an area lamp along its X and Y axes: a SQUARE or DISK has size_x for both, as in Blender."""
+    return size_x, size_x if shape in ("SQUARE", "DISK") else size_y
+
+
+def lamp_area(shape: str, size_x: float, size_y: float) -> float:
+    """Emitting area of an area lamp of Blender shape SQUARE, RECTANGLE, DISK or ELLIPSE."""
+    sx, sy = _lamp_sides(shape, size_x, size_y)
+    return sx * sy * (np.pi / 4 if shape in ("DISK", "ELLIPSE") else 1.0)
 
 
 def spot_falloff(cos_angle: np.ndarray, spot_size: float, blend: float) -> np.ndarray:
@@ -93,13 +99,11 @@ def area_samples(lamp: Lamp, per_side: int = 8) -> tuple[np.ndarray, np.ndarray]
     t = t - d * (t @ d)
     t /= np.linalg.norm(t)
     b = np.cross(d, t)
-    sx = lamp.size_x
-    sy = lamp.size_x if lamp.shape in ("SQUARE", "DISK") else lamp.size_y
+    sx, sy = _lamp_sides(lamp.shape, lamp.size_x, lamp.size_y)
     g = (np.arange(per_side) + 0.5) / per_side - 0.5
     if lamp.shape in ("SQUARE", "RECTANGLE"):
         u, v = np.meshgrid(g * sx, g * sy, indexing="ij")
         u, v = u.ravel(), v.ravel()
-        w = np.full(u.size, sx * sy / u.size)
     else:  # disk or ellipse: equal-area rings
         n_r = per_side
         s = (np.arange(n_r) + 0.5) / n_r
@@ -107,9 +111,8 @@ def area_samples(lamp: Lamp, per_side: int = 8) -> tuple[np.ndarray, np.ndarray]
         th = 2 * np.pi * (np.arange(2 * per_side) + 0.5 * (np.arange(n_r)[:, None] % 2)) / (2 * per_side)
         u = (0.5 * sx * r * np.cos(th)).ravel()
         v = (0.5 * sy * r * np.sin(th)).ravel()
-        w = np.full(u.size, np.pi * 0.25 * sx * sy / u.size)
     p = np.asarray(lamp.position, float)
-    return p + u[:, None] * t + v[:, None] * b, w
+    return p + u[:, None] * t + v[:, None] * b, np.full(u.size, lamp_area(lamp.shape, sx, sy) / u.size)
 
 
 def shadow_origin(points: np.ndarray, normals: np.ndarray, directions: np.ndarray, eps: float) -> np.ndarray:
@@ -242,7 +245,12 @@ def lamp_irradiance(
             cos = np.einsum("ij,ij->i", nrm, omega)
             if lamp.kind == "AREA":
                 cos_l = np.einsum("ij,j->i", -omega, axis)
-                intensity = lamp.power / (np.pi * lamp.size_area()) * ws * np.clip(cos_l, 0, None)
+                intensity = (
+                    lamp.power
+                    / (np.pi * lamp_area(lamp.shape, lamp.size_x, lamp.size_y))
+                    * ws
+                    * np.clip(cos_l, 0, None)
+                )
             else:
                 intensity = np.full(len(pts), lamp.power / (4 * np.pi))
                 if lamp.kind == "SPOT":
