@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, fields, replace
 from functools import cached_property
 
@@ -12,11 +11,10 @@ from scipy.spatial import cKDTree
 from . import names
 from .errors import OvradError
 from .placement import Placed, place_curved, place_planar
-from .rays import make_rays
+from .progress import StageCallback, report_stage
+from .rays import EmbreeRays, NumpyRays, make_rays
 from .settings import AtlasSettings
 from .surfaces import Charts, Surfaces, find_charts
-
-Progress = Callable[[float, str], bool] | None
 
 
 @dataclass(frozen=True, eq=False)
@@ -157,7 +155,7 @@ class SurfaceIndex:
     sheet_table: np.ndarray
     sheet_chart: np.ndarray
     sheet_side: np.ndarray
-    rays: object
+    rays: NumpyRays | EmbreeRays
 
     def sheet_of(self, triangle: np.ndarray, side: np.ndarray) -> np.ndarray:
         """Sheet index (or -1) of surface points on `triangle` seen from `side` (+1 front, -1 back)."""
@@ -311,7 +309,7 @@ def _too_many(count: int, settings: AtlasSettings) -> OvradError:
 
 
 def build_atlas(
-    surfaces: Surfaces, settings: AtlasSettings, progress: Progress = None, backend: str = "auto"
+    surfaces: Surfaces, settings: AtlasSettings, progress: StageCallback | None = None, backend: str = "auto"
 ) -> Atlas:
     """Cover the receiving surfaces with overlapping patches and integrate their overlaps (C).
 
@@ -319,11 +317,7 @@ def build_atlas(
     """
     from .overlap import overlap_matrix
 
-    def report(f: float, msg: str) -> None:
-        if progress is not None and progress(f, msg) is False:
-            raise OvradError("cancelled")
-
-    report(0.0, "finding charts")
+    report_stage(progress, 0.0, "finding charts")
     index = index_surfaces(surfaces, settings, backend)
     if len(index.sheet_chart) == 0:
         raise OvradError("no receiving surface: mark at least one object as a receiver")
@@ -335,7 +329,7 @@ def build_atlas(
     estimate = int(round(float(np.sum(chart_area[index.sheet_chart] / spacing**2))))
     if estimate > settings.max_patches:  # refuse before allocating anything of that size
         raise _too_many(estimate, settings)
-    report(0.1, "placing patches")
+    report_stage(progress, 0.1, "placing patches")
     placed, total = _place_all(index, settings, spacing)
     if settings.patch_size is None and total <= settings.max_patches:
         # Boundary cells add to the count; one correction brings it near the target.
@@ -365,9 +359,12 @@ def build_atlas(
         random=rng.random(n),
         beta=settings.beta,
     )
-    report(0.2, f"integrating overlaps of {n} patches")
+    report_stage(progress, 0.2, f"integrating overlaps of {n} patches")
     C, support = overlap_matrix(
-        atlas, index, settings.quadrature, progress=lambda f: report(0.2 + 0.8 * f, "integrating overlaps")
+        atlas,
+        index,
+        settings.quadrature,
+        progress=lambda f: report_stage(progress, 0.2 + 0.8 * f, "integrating overlaps"),
     )
     if np.any(support <= 0):
         # Patches with no support on their sheet: a face lying on another (a box's bottom on

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .lights import Lamp, lamp_irradiance, shadow_origin
-from .surfaces import Surfaces
+from .surfaces import Surfaces, triangle_geometry
 
 _CHUNK_RAYS = 1 << 20
 
@@ -38,10 +38,7 @@ class DirectLight:
 
 def triangle_normals(surfaces: Surfaces, triangles: np.ndarray) -> np.ndarray:
     """Unit geometric normals (m, 3) of triangles (zero for degenerate ones)."""
-    c = surfaces.corners[np.asarray(triangles, np.int64)]
-    n = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
-    length = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.where(length > 0, n / np.maximum(length, 1e-300), 0.0)
+    return triangle_geometry(surfaces.corners[np.asarray(triangles, np.int64)])[1]
 
 
 def _subtriangle_centroids(k: int) -> np.ndarray:
@@ -78,16 +75,14 @@ def emitter_samples(
     """
     tri = np.flatnonzero(np.asarray(emitters, bool) & (surfaces.emission.sum(axis=1) > 0))
     c = surfaces.corners[tri]
-    cross = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
-    area = 0.5 * np.linalg.norm(cross, axis=1)
+    area, normal = triangle_geometry(c)
     radiance = surfaces.emission[tri] * scale
     power = area * radiance.sum(axis=1)
     keep = power > 0
-    c, cross, area, radiance, power = c[keep], cross[keep], area[keep], radiance[keep], power[keep]
+    c, normal, area, radiance, power = c[keep], normal[keep], area[keep], radiance[keep], power[keep]
     if len(c) == 0 or count < 1:
         z = np.zeros((0, 3))
         return EmitterSamples(z, z, np.zeros(0), z)
-    normal = cross / np.linalg.norm(cross, axis=1, keepdims=True)
     total = power.sum()
     if len(c) >= count:
         pick = np.searchsorted(np.cumsum(power) / total, (np.arange(count) + 0.5) / count)

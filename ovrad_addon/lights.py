@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import OvradError
+from .geometry import tangent_frame
 
 LAMP_KINDS = ("POINT", "SPOT", "SUN", "AREA")
 AREA_SHAPES = ("SQUARE", "RECTANGLE", "DISK", "ELLIPSE")
@@ -69,10 +70,16 @@ class Lamp:
         """A sphere (point, spot with a radius) or a sun disk (angle): sampled, soft shadows."""
         return (self.kind in ("POINT", "SPOT") and self.radius > 0) or (self.kind == "SUN" and self.angle > 0)
 
-    def size_area(self) -> float:
-        """Emitting area of an area lamp."""
-        sy = self.size_x if self.shape in ("SQUARE", "DISK") else self.size_y
-        return self.size_x * sy * (np.pi / 4 if self.shape in ("DISK", "ELLIPSE") else 1.0)
+
+def _lamp_sides(shape: str, size_x: float, size_y: float) -> tuple[float, float]:
+    """Lengths of an area lamp along its X and Y axes: a SQUARE or DISK has size_x for both, as in Blender."""
+    return size_x, size_x if shape in ("SQUARE", "DISK") else size_y
+
+
+def lamp_area(shape: str, size_x: float, size_y: float) -> float:
+    """Emitting area of an area lamp of Blender shape SQUARE, RECTANGLE, DISK or ELLIPSE."""
+    sx, sy = _lamp_sides(shape, size_x, size_y)
+    return sx * sy * (np.pi / 4 if shape in ("DISK", "ELLIPSE") else 1.0)
 
 
 def spot_falloff(cos_angle: np.ndarray, spot_size: float, blend: float) -> np.ndarray:
@@ -92,13 +99,11 @@ def area_samples(lamp: Lamp, per_side: int = 8) -> tuple[np.ndarray, np.ndarray]
     t = t - d * (t @ d)
     t /= np.linalg.norm(t)
     b = np.cross(d, t)
-    sx = lamp.size_x
-    sy = lamp.size_x if lamp.shape in ("SQUARE", "DISK") else lamp.size_y
+    sx, sy = _lamp_sides(lamp.shape, lamp.size_x, lamp.size_y)
     g = (np.arange(per_side) + 0.5) / per_side - 0.5
     if lamp.shape in ("SQUARE", "RECTANGLE"):
         u, v = np.meshgrid(g * sx, g * sy, indexing="ij")
         u, v = u.ravel(), v.ravel()
-        w = np.full(u.size, sx * sy / u.size)
     else:  # disk or ellipse: equal-area rings
         n_r = per_side
         s = (np.arange(n_r) + 0.5) / n_r
@@ -106,9 +111,8 @@ def area_samples(lamp: Lamp, per_side: int = 8) -> tuple[np.ndarray, np.ndarray]
         th = 2 * np.pi * (np.arange(2 * per_side) + 0.5 * (np.arange(n_r)[:, None] % 2)) / (2 * per_side)
         u = (0.5 * sx * r * np.cos(th)).ravel()
         v = (0.5 * sy * r * np.sin(th)).ravel()
-        w = np.full(u.size, np.pi * 0.25 * sx * sy / u.size)
     p = np.asarray(lamp.position, float)
-    return p + u[:, None] * t + v[:, None] * b, w
+    return p + u[:, None] * t + v[:, None] * b, np.full(u.size, lamp_area(lamp.shape, sx, sy) / u.size)
 
 
 def shadow_origin(points: np.ndarray, normals: np.ndarray, directions: np.ndarray, eps: float) -> np.ndarray:
@@ -132,10 +136,7 @@ def cone_directions(axis: np.ndarray, cos_a: np.ndarray, count: int, rng) -> tup
     cos_psi = 1.0 - (1.0 - cos_a)[:, None] * ((np.arange(n_r) + 0.5) / n_r)[None, :]  # (m, n_r)
     sin_psi = np.sqrt(np.maximum(1.0 - cos_psi**2, 0.0))
     phi = 2.0 * np.pi * (np.arange(n_az)[None, None, :] + rng.random((m, n_r, 1))) / n_az
-    helper = np.eye(3)[np.argmin(np.abs(axis), axis=1)]
-    t = np.cross(helper, axis)
-    t /= np.linalg.norm(t, axis=1, keepdims=True)
-    b = np.cross(axis, t)
+    t, b = tangent_frame(axis)
     cp, sp = cos_psi[..., None, None], sin_psi[..., None, None]
     d = (
         cp * axis[:, None, None]
@@ -244,7 +245,12 @@ def lamp_irradiance(
             cos = np.einsum("ij,ij->i", nrm, omega)
             if lamp.kind == "AREA":
                 cos_l = np.einsum("ij,j->i", -omega, axis)
-                intensity = lamp.power / (np.pi * lamp.size_area()) * ws * np.clip(cos_l, 0, None)
+                intensity = (
+                    lamp.power
+                    / (np.pi * lamp_area(lamp.shape, lamp.size_x, lamp.size_y))
+                    * ws
+                    * np.clip(cos_l, 0, None)
+                )
             else:
                 intensity = np.full(len(pts), lamp.power / (4 * np.pi))
                 if lamp.kind == "SPOT":

@@ -1,9 +1,10 @@
 """Integrals over patch supports: quadrature points on the surface, the overlap matrix C, alpha at points.
 
 C[h, i] = c_ih = integral over D_h of alpha_i; its row sums are the support areas A_h and its
-diagonal the effective areas c_hh. Integration uses an equal-weight rule on each patch's disk
-or square, with every rule point moved onto the patch's own sheet along the patch normal
-(rule points that land nowhere on the sheet are outside the support and get no weight).
+diagonal the effective areas c_hh. Integration uses a polar rule on each patch's disk or square
+(polar_rule: Gauss points on the pieces of each ray between neighbours' rims), with every rule
+point moved onto the patch's own sheet along the patch normal (rule points that land nowhere
+on the sheet are outside the support and get no weight).
 """
 
 from __future__ import annotations
@@ -14,8 +15,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix
 
+from .names import SHAPE_SQUARE
 from .parallel import WORKERS, threaded
-from .support import SHAPE_SQUARE, alpha_from_pairs, pair_beta
+from .support import alpha_from_pairs, pair_beta
 
 
 @dataclass(frozen=True)
@@ -48,7 +50,31 @@ def polar_rule(atlas, ids: np.ndarray, nb: np.ndarray, q: int, planar: np.ndarra
     cand (m, M) marks the neighbours that may contain each rule point: on planar sheets the
     rim crossings already tell, elsewhere every neighbour is a candidate.
     """
-    k = len(ids)
+    theta, dtheta, ux, uy, rmax = _rule_rays(atlas, ids, q)
+    k, n_t = theta.shape
+    r = atlas.radii[ids][:, None]
+    ring = np.sqrt(np.arange(1, rings) / rings)[None, None, :] * rmax[..., None]
+    cuts = [np.zeros((k, n_t, 1)), ring, rmax[..., None]]
+    spans = _rim_crossings(atlas, ids, nb, planar, ux, uy, rmax) if nb.shape[1] else None
+    if spans is not None:
+        cuts += list(spans[:2])
+    bp = np.sort(np.concatenate(cuts, axis=2), axis=2)
+    lo, hi = bp[..., :-1], bp[..., 1:]
+    keep = hi > lo + 1e-12 * r[..., None]
+    kk, tt, _ = np.nonzero(keep)
+    lo, hi = lo[keep], hi[keep]
+    rho, w = _radial_points(lo, hi, dtheta[kk, tt], atlas.beta)
+    per_piece = rho.shape[1]
+    owner = np.repeat(kk, per_piece)
+    th = np.repeat(theta[kk, tt], per_piece)
+    cand = np.repeat(_piece_candidates(spans, lo, hi, r, kk, tt, planar, nb), per_piece, axis=0)
+    rho = rho.ravel()
+    return owner, rho * np.cos(th), rho * np.sin(th), w.ravel(), cand
+
+
+def _rule_rays(atlas, ids: np.ndarray, q: int) -> tuple[np.ndarray, ...]:
+    """The 4q rays of each patch's polar rule: angles theta, angular weights dtheta, directions
+    (ux, uy) = (cos, sin) theta, and rmax, where each ray leaves the disk or square; all (k, 4q)."""
     n_t = 4 * q
     rnd = np.random.default_rng(len(atlas)).random(len(atlas))[ids]
     r = atlas.radii[ids][:, None]
@@ -64,73 +90,87 @@ def polar_rule(atlas, ids: np.ndarray, nb: np.ndarray, q: int, planar: np.ndarra
     dtheta = np.where(square, 0.5 * np.pi * np.tile(gw, 4)[None, :], 2.0 * np.pi / n_t)
     ux, uy = np.cos(theta), np.sin(theta)
     rmax = np.where(square, r / np.maximum(np.abs(ux), np.abs(uy)), r)  # (k, n_t)
-    ring = np.sqrt(np.arange(1, rings) / rings)[None, None, :] * rmax[..., None]
-    cuts = [np.zeros((k, n_t, 1)), ring, rmax[..., None]]
-    spans = None
-    if nb.shape[1]:
-        t_h = atlas.tangents[ids]
-        b_h = atlas.bitangents[ids]
-        ok = (nb >= 0) & planar[:, None]
-        j = np.maximum(nb, 0)
-        rel = atlas.centers[j] - atlas.centers[ids][:, None]
-        cx = np.einsum("kmd,kd->km", rel, t_h)[..., None]
-        cy = np.einsum("kmd,kd->km", rel, b_h)[..., None]
-        rj = atlas.radii[j][..., None]
-        uxe, uye = ux[:, None], uy[:, None]  # (k, 1, n_t)
-        # disk neighbour: |rho u - c| = r_j
-        cu = cx * uxe + cy * uye
-        disc = cu * cu - (cx * cx + cy * cy) + rj * rj
-        sq = np.sqrt(np.maximum(disc, 0.0))
-        d_in, d_out = cu - sq, cu + sq
-        # square neighbour: slabs along its own axes, expressed in this patch's plane
-        tj = atlas.tangents[j]
-        ax = np.einsum("kmd,kd->km", tj, t_h)[..., None]
-        ay = np.einsum("kmd,kd->km", tj, b_h)[..., None]
-        lo_e, hi_e = [], []
-        for a1, a2 in ((ax, ay), (-ay, ax)):
-            ua = uxe * a1 + uye * a2
-            ca = cx * a1 + cy * a2
-            with np.errstate(divide="ignore", invalid="ignore"):
-                e1 = (ca - rj) / ua
-                e2 = (ca + rj) / ua
-            lo_e.append(np.where(ua != 0, np.minimum(e1, e2), -np.inf))
-            hi_e.append(np.where(ua != 0, np.maximum(e1, e2), np.inf))
-        s_in = np.maximum(lo_e[0], lo_e[1])
-        s_out = np.minimum(hi_e[0], hi_e[1])
-        is_sq = (atlas.shapes[j] == SHAPE_SQUARE)[..., None]
-        c_in = np.where(is_sq, s_in, d_in)
-        c_out = np.where(is_sq, s_out, d_out)
-        hit = ok[..., None] & np.where(is_sq, s_in < s_out, disc > 0)
-        big = rmax[:, None]
-        c_in = np.where(hit, np.clip(c_in, 0.0, big), big)
-        c_out = np.where(hit, np.clip(c_out, 0.0, big), big)
-        spans = (np.moveaxis(c_in, 1, 2), np.moveaxis(c_out, 1, 2), np.moveaxis(hit, 1, 2))
-        cuts += list(spans[:2])
-    bp = np.sort(np.concatenate(cuts, axis=2), axis=2)
-    lo, hi = bp[..., :-1], bp[..., 1:]
-    keep = hi > lo + 1e-12 * r[..., None]
-    kk, tt, _ = np.nonzero(keep)
-    lo, hi = lo[keep], hi[keep]
+    return theta, dtheta, ux, uy, rmax
+
+
+def _rim_crossings(
+    atlas,
+    ids: np.ndarray,
+    nb: np.ndarray,
+    planar: np.ndarray,
+    ux: np.ndarray,
+    uy: np.ndarray,
+    rmax: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where each rule ray (directions ux, uy (k, n_t) in the patch's plane) enters and leaves
+    each neighbour nb (k, M): (c_in, c_out, hit), each (k, n_t, M), distances clipped to
+    [0, rmax]. hit is False for padding, for rays that miss the neighbour, and off planar sheets
+    (rims are exact circles and squares in the plane only there)."""
+    t_h = atlas.tangents[ids]
+    b_h = atlas.bitangents[ids]
+    ok = (nb >= 0) & planar[:, None]
+    j = np.maximum(nb, 0)
+    rel = atlas.centers[j] - atlas.centers[ids][:, None]
+    cx = np.einsum("kmd,kd->km", rel, t_h)[..., None]
+    cy = np.einsum("kmd,kd->km", rel, b_h)[..., None]
+    rj = atlas.radii[j][..., None]
+    uxe, uye = ux[:, None], uy[:, None]  # (k, 1, n_t)
+    # disk neighbour: |rho u - c| = r_j
+    cu = cx * uxe + cy * uye
+    disc = cu * cu - (cx * cx + cy * cy) + rj * rj
+    sq = np.sqrt(np.maximum(disc, 0.0))
+    d_in, d_out = cu - sq, cu + sq
+    # square neighbour: slabs along its own axes, expressed in this patch's plane
+    tj = atlas.tangents[j]
+    ax = np.einsum("kmd,kd->km", tj, t_h)[..., None]
+    ay = np.einsum("kmd,kd->km", tj, b_h)[..., None]
+    lo_e, hi_e = [], []
+    for a1, a2 in ((ax, ay), (-ay, ax)):
+        ua = uxe * a1 + uye * a2
+        ca = cx * a1 + cy * a2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            e1 = (ca - rj) / ua
+            e2 = (ca + rj) / ua
+        lo_e.append(np.where(ua != 0, np.minimum(e1, e2), -np.inf))
+        hi_e.append(np.where(ua != 0, np.maximum(e1, e2), np.inf))
+    s_in = np.maximum(lo_e[0], lo_e[1])
+    s_out = np.minimum(hi_e[0], hi_e[1])
+    is_sq = (atlas.shapes[j] == SHAPE_SQUARE)[..., None]
+    c_in = np.where(is_sq, s_in, d_in)
+    c_out = np.where(is_sq, s_out, d_out)
+    hit = ok[..., None] & np.where(is_sq, s_in < s_out, disc > 0)
+    big = rmax[:, None]
+    c_in = np.where(hit, np.clip(c_in, 0.0, big), big)
+    c_out = np.where(hit, np.clip(c_out, 0.0, big), big)
+    return np.moveaxis(c_in, 1, 2), np.moveaxis(c_out, 1, 2), np.moveaxis(hit, 1, 2)
+
+
+def _radial_points(
+    lo: np.ndarray, hi: np.ndarray, dtheta: np.ndarray, beta: str
+) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss points rho (p, g) and their area weights (p, g) on the radial pieces [lo, hi] (p,)
+    of rays with angular weights dtheta (p,)."""
     # alpha is constant on each piece with box beta: one point per piece is exact there
-    gx, gw = _gauss(1 if atlas.beta == "box" else 2)
+    gx, gw = _gauss(1 if beta == "box" else 2)
     # Gauss points in s = rho^2 (the area coordinate along the ray): integrands polynomial in
     # rho^2, like a smooth field's radial variation, are integrated exactly on each piece.
     s_lo, s_hi = lo * lo, hi * hi
     rho = np.sqrt(s_lo[:, None] + (s_hi - s_lo)[:, None] * gx[None])
-    w = dtheta[kk, tt][:, None] * 0.5 * (s_hi - s_lo)[:, None] * gw[None]
-    owner = np.repeat(kk, len(gx))
-    th = np.repeat(theta[kk, tt], len(gx))
+    w = dtheta[:, None] * 0.5 * (s_hi - s_lo)[:, None] * gw[None]
+    return rho, w
+
+
+def _piece_candidates(spans, lo, hi, r, kk, tt, planar, nb) -> np.ndarray:
+    """(p, M) bool: the neighbours that may contain the pieces [lo, hi] (p,) of rays tt of
+    patches kk: on planar sheets those whose rim crossings (spans) hold the piece's middle,
+    elsewhere every neighbour."""
     if spans is None:
-        cand = np.zeros((len(kk), 0), bool)
-    else:
-        mid = (0.5 * (lo + hi))[:, None]
-        tol = 1e-9 * r[kk]
-        c_in, c_out, hit = (a[kk, tt] for a in spans)
-        inside = hit & (c_in - tol < mid) & (mid < c_out + tol)
-        cand = np.where(planar[kk][:, None], inside, nb[kk] >= 0)
-    cand = np.repeat(cand, len(gx), axis=0)
-    rho = rho.ravel()
-    return owner, rho * np.cos(th), rho * np.sin(th), w.ravel(), cand
+        return np.zeros((len(kk), 0), bool)
+    mid = (0.5 * (lo + hi))[:, None]
+    tol = 1e-9 * r[kk]
+    c_in, c_out, hit = (a[kk, tt] for a in spans)
+    inside = hit & (c_in - tol < mid) & (mid < c_out + tol)
+    return np.where(planar[kk][:, None], inside, nb[kk] >= 0)
 
 
 def patch_quadrature(

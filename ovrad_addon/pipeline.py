@@ -11,7 +11,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.sparse import csc_matrix, diags
+from scipy.sparse import csc_matrix, csr_matrix, diags, spmatrix
 
 from .atlas import Atlas, SurfaceIndex, index_surfaces
 from .direct import DirectLight, direct_irradiance, triangle_normals
@@ -19,8 +19,9 @@ from .errors import OvradError
 from .gather import MAX_RAYS, gather_unique, sampled_emission
 from .lights import Lamp
 from .overlap import alpha_at, overlap_matrix, patch_average, patch_quadrature, reconstruct
+from .progress import StageCallback, report_stage
 from .settings import AtlasSettings, ObjectSettings
-from .solver import SolveState, _factor, inverse_areas, solve_progressive
+from .solver import SolveState, factorize, inverse_areas, solve_progressive
 from .surfaces import Surfaces
 from .transport import Transport, gather_transport
 
@@ -34,7 +35,7 @@ class SolveSettings:
     "paper" (the published update); rays_per_point: hemisphere rays per receiver point;
     batch: shooters per step; light_samples: emitter samples per receiver point (direct light);
     bake_samples: emitter samples per bake point (direct light at vertices and texels);
-    smoothing: weight of the overlap-graph Laplacian added to C when solving (see regularised()),
+    smoothing: weight of the overlap-graph Laplacian added to C when solving (see laplacian_smoothed()),
     0 solves equation (9) exactly; min_rays: transport rays cast at least, in all (a small atlas
     gets more receiver points and rays per point, see gather_transport); gather_rays: final-gather
     rays per bake point for its indirect light (gather.py), 0 reconstructs it from the patches
@@ -76,18 +77,10 @@ class Problem:
     surfaces: Surfaces
     atlas: Atlas
     index: SurfaceIndex
-    C: object
+    C: csr_matrix
     transport: Transport
     rays: int
     seconds: dict
-
-
-Progress = Callable[[float, str], bool] | None
-
-
-def _report(progress: Progress, f: float, msg: str) -> None:
-    if progress is not None and progress(f, msg) is False:
-        raise OvradError("cancelled")
 
 
 def attach_sheets(atlas: Atlas, index: SurfaceIndex) -> Atlas:
@@ -129,7 +122,7 @@ def prepare(
     atlas: Atlas,
     settings: SolveSettings = SolveSettings(),
     quadrature: int = 12,
-    progress: Progress = None,
+    progress: StageCallback | None = None,
     backend: str = "auto",
 ) -> Problem:
     """Sheets, the overlap matrix C (fine rule of `quadrature`) and the transport R for an atlas."""
@@ -137,20 +130,20 @@ def prepare(
         raise OvradError("the atlas has no patches: generate an atlas first")
     seconds = {}
     t0 = time.perf_counter()
-    _report(progress, 0.0, "indexing surfaces")
+    report_stage(progress, 0.0, "indexing surfaces")
     n_obj = len(surfaces.object_names)
     index = index_surfaces(
         surfaces, AtlasSettings(objects=tuple(ObjectSettings(sides="BOTH") for _ in range(n_obj))), backend
     )
     atlas = attach_sheets(atlas, index)
     seconds["index"] = time.perf_counter() - t0
-    _report(progress, 0.05, "integrating overlaps")
+    report_stage(progress, 0.05, "integrating overlaps")
     t0 = time.perf_counter()
     C, support = overlap_matrix(
         atlas,
         index,
         quadrature,
-        progress=lambda f: _report(progress, 0.05 + 0.35 * f, "integrating overlaps"),
+        progress=lambda f: report_stage(progress, 0.05 + 0.35 * f, "integrating overlaps"),
     )
     atlas = replace(atlas, support_area=support, effective_area=C.diagonal().copy())
     seconds["overlap"] = time.perf_counter() - t0
@@ -159,14 +152,14 @@ def prepare(
         atlas,
         index,
         settings.rays_per_point,
-        progress=lambda f: _report(progress, 0.4 + 0.6 * f, "casting transport rays"),
+        progress=lambda f: report_stage(progress, 0.4 + 0.6 * f, "casting transport rays"),
         min_rays=settings.min_rays,
     )
     seconds["transport"] = time.perf_counter() - t0
     return Problem(surfaces, atlas, index, C, T, T.rays, seconds)
 
 
-def regularised(C, weight: float):
+def laplacian_smoothed(C: spmatrix, weight: float) -> spmatrix:
     """C + weight L, L the Laplacian of the overlap graph (edge weights (c_ij + c_ji) / 2).
 
     Ray estimates of R carry noise, and C^-1 amplifies the part of it that oscillates between
@@ -244,7 +237,7 @@ def solve(
     """
     atlas = problem.atlas
     E = patch_emission(problem, emission_scale)
-    C_solve = regularised(problem.C, settings.smoothing) if settings.rule == "exact" else problem.C
+    C_solve = laplacian_smoothed(problem.C, settings.smoothing) if settings.rule == "exact" else problem.C
     if state is None:
         T = problem.transport
         rp = T.points
@@ -257,7 +250,7 @@ def solve(
         if not np.any(received > 0) and not np.any(E > 0):
             raise OvradError("no light: nothing in the scene emits (add a lamp or an emissive material)")
         if settings.rule == "exact":
-            dB = _factor(C_solve).solve(received)
+            dB = factorize(C_solve).solve(received)
         else:
             inv = inverse_areas(atlas.support_area)[:, None]
             dB = (problem.C.T @ (received * inv)) * inv

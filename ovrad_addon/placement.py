@@ -13,7 +13,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
-from .support import SHAPE_DISK, SHAPE_SQUARE
+from .geometry import tangent_frame
+from .names import SHAPE_DISK, SHAPE_SQUARE
+from .surfaces import triangle_geometry
 
 
 @dataclass
@@ -94,10 +96,7 @@ def place_planar(
 ) -> Placed:
     """Grid patches on one planar sheet given its triangles (T, 3, 3) and the sheet's unit normal."""
     n = normal / np.linalg.norm(normal)
-    helper = np.eye(3)[np.argmin(np.abs(n))]
-    e1 = np.cross(helper, n)
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(n, e1)
+    e1, e2 = tangent_frame(n)
     origin = corners.reshape(-1, 3).mean(axis=0)
     rel = corners - origin
     p2 = np.stack([rel @ e1, rel @ e2], axis=-1)  # (T, 3, 2)
@@ -181,7 +180,7 @@ def place_planar(
 
 def sample_triangles(corners: np.ndarray, spacing: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """Random surface samples about `spacing` apart, plus every corner: (points (s, 3), triangle (s,))."""
-    a = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+    a = triangle_geometry(corners)[0]
     count = np.maximum(np.ceil(a / spacing**2), 1).astype(np.int64)
     tri = np.repeat(np.arange(len(corners)), count)
     rng = np.random.default_rng(seed)
@@ -223,9 +222,7 @@ def place_curved(
     order = np.lexsort((d_mean, vox))
     first = order[np.searchsorted(vox[order], np.arange(k))]
     centers = pts[first]
-    helper = np.eye(3)[np.argmin(np.abs(normals), axis=1)]
-    tangents = np.cross(helper, normals)
-    tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)
+    tangents = tangent_frame(normals)[0]
     rel = pts - centers[vox]
     h = np.einsum("ij,ij->i", rel, normals[vox])
     inplane = np.sqrt(np.maximum(np.einsum("ij,ij->i", rel, rel) - h * h, 0.0))

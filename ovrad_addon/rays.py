@@ -6,9 +6,12 @@ closest_hit (first triangle along each ray within [0, tmax]) and occluded (any h
 
 from __future__ import annotations
 
+import threading
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
+
+from .parallel import WORKERS
 
 try:  # embreex ships wheels for the main platforms; elsewhere the numpy backend answers.
     from embreex import mesh_construction as _emb_mesh
@@ -17,6 +20,18 @@ except ImportError:  # pragma: no cover - exercised only where embreex is missin
     _emb_scene = None
 
 _BATCH = 1 << 18
+_POOL: ThreadPoolExecutor | None = None
+_POOL_LOCK = threading.Lock()
+
+
+def _query_pool() -> ThreadPoolExecutor:
+    """The threads every embree scene queries on: one pool for the process, made on first use,
+    so an index (one per atlas build, prepare or bake) leaves no threads behind."""
+    global _POOL
+    with _POOL_LOCK:
+        if _POOL is None:
+            _POOL = ThreadPoolExecutor(max_workers=WORKERS, thread_name_prefix="ovrad-rays")
+        return _POOL
 
 
 class NumpyRays:
@@ -65,7 +80,7 @@ class NumpyRays:
 
 
 class EmbreeRays:
-    """embreex scene over the triangles, queried in large batches from two threads.
+    """embreex scene over the triangles, queried in large batches on the shared query threads.
 
     Coordinates are shifted to the scene's centre and divided by its size before the float32
     conversion, so that precision does not depend on where the scene sits or on its scale: a
@@ -85,7 +100,6 @@ class EmbreeRays:
             np.ascontiguousarray((v - self._shift) / self._scale, np.float32),
             np.ascontiguousarray(triangles, np.int32),
         )
-        self._pool = ThreadPoolExecutor(max_workers=2)
 
     def _run(self, origins, directions, tmax, query: str):
         o = np.ascontiguousarray((np.asarray(origins, np.float64) - self._shift) / self._scale, np.float32)
@@ -99,7 +113,7 @@ class EmbreeRays:
                 return self._scene.run(o[sl], d[sl], dists=tm[sl].copy(), query="OCCLUDED")
             return self._scene.run(o[sl], d[sl], dists=tm[sl].copy(), output=1)
 
-        return list(self._pool.map(one, chunks))
+        return list(_query_pool().map(one, chunks))
 
     def closest_hit(self, origins, directions, tmax) -> tuple[np.ndarray, np.ndarray]:
         if len(origins) == 0:

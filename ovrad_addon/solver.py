@@ -15,13 +15,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.sparse import csc_matrix, diags
-from scipy.sparse.linalg import LinearOperator, gmres, splu
+from scipy.sparse.linalg import LinearOperator, SuperLU, gmres, splu
 
 from .errors import OvradError
 
 # Relative diagonal shift that keeps C factorable when patches coincide (C singular): it picks
 # a small-norm split of B between coincident patches; the reconstructed B is unaffected.
-_REGULARISE = 1e-9
+_DIAGONAL_SHIFT = 1e-9
 
 
 @dataclass
@@ -48,10 +48,17 @@ class SolveState:
 Progress = Callable[[float, float, float, int], bool] | None
 
 
-def _factor(C):
+def diagonal_shift(diagonal: np.ndarray) -> np.ndarray:
+    """The tiny shift (n,) added to C's diagonal before solving with it (see _DIAGONAL_SHIFT)."""
+    d = np.abs(diagonal)
+    return _DIAGONAL_SHIFT * np.maximum(d, d.max() * 1e-12)
+
+
+def factorize(C) -> SuperLU:
+    """Sparse LU of C (n x n) with its diagonal shifted a hair (diagonal_shift), so that it
+    factors even when patches coincide; .solve(rhs) then applies C^-1."""
     Cc = csc_matrix(C, dtype=np.float64)
-    d = np.abs(Cc.diagonal())
-    return splu((Cc + diags(_REGULARISE * np.maximum(d, d.max() * 1e-12))).tocsc())
+    return splu((Cc + diags(diagonal_shift(Cc.diagonal()))).tocsc())
 
 
 def inverse_areas(A: np.ndarray) -> np.ndarray:
@@ -98,7 +105,7 @@ def solve_progressive(
     if emitted <= 0:
         raise OvradError("no light: nothing in the scene emits (add an emissive material or a lamp)")
     if rule == "exact":
-        lu = _factor(C)
+        lu = factorize(C)
         to_basis = lu.solve
     else:
         A = np.asarray(support_area if support_area is not None else np.asarray(C.sum(axis=1)).ravel())
@@ -169,7 +176,7 @@ def solve_direct(C, transport, emission: np.ndarray) -> np.ndarray:
     """Reference: (C - R) B = C E solved directly with dense matrices (small scenes and tests)."""
     E = np.asarray(emission, np.float64).reshape(-1, 3)
     Cd = csc_matrix(C).toarray()
-    Cd += np.diag(_REGULARISE * np.maximum(np.abs(np.diag(Cd)), np.abs(np.diag(Cd)).max() * 1e-12))
+    Cd += np.diag(diagonal_shift(np.diag(Cd)))
     out = []
     for j in range(3):
         R = transport.rho[:, [j]] * transport.geometric.toarray()

@@ -1,4 +1,4 @@
-"""Where a patch lives on the surface: membership, beta and alpha at points, and quadrature rules.
+"""Where a patch lives on the surface: membership, beta and alpha at points.
 
 A surface point M (with its sheet: chart and side) is in patch D_i when it lies on the patch's
 sheet, its normal agrees with n_i (cosine >= min_cos_i), it is within thickness_i of the patch
@@ -12,22 +12,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.sparse import csr_matrix
 
-SHAPE_DISK = 0
-SHAPE_SQUARE = 1
+from .names import SHAPE_SQUARE
+
 RIM_TOLERANCE = 1e-5  # relative to the patch radius
-
-
-def local_coords(patches, idx: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """In-plane coordinates (x, y) along (tangent, bitangent) and height h of points relative to patches idx.
-
-    Each row pairs one point with one patch; all arrays (m,).
-    """
-    rel = points - patches.centers[idx]
-    return (
-        np.einsum("ij,ij->i", rel, patches.tangents[idx]),
-        np.einsum("ij,ij->i", rel, patches.bitangents[idx]),
-        np.einsum("ij,ij->i", rel, patches.normals[idx]),
-    )
 
 
 def beta_of(
@@ -102,27 +89,3 @@ def alpha_from_pairs(
     with np.errstate(divide="ignore", invalid="ignore"):
         a = np.where(zero, 1.0 / count[rows], b / bsum[rows])
     return csr_matrix((a, (rows, cols)), shape=shape)
-
-
-def disk_rule(q: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Equal-area midpoint rule on the unit disk: (x, y, w), weights summing to pi exactly.
-
-    q//2 rings of equal area (midpoint in r^2), 2q angles per ring, alternate rings offset by
-    half a step so no radial line of points repeats.
-    """
-    n_r, n_t = max(q // 2, 1), 2 * q
-    s = (np.arange(n_r) + 0.5) / n_r
-    r = np.sqrt(s)
-    k = np.arange(n_t)
-    theta = 2 * np.pi * (k[None, :] + 0.5 * (np.arange(n_r)[:, None] % 2)) / n_t
-    x = (r[:, None] * np.cos(theta)).ravel()
-    y = (r[:, None] * np.sin(theta)).ravel()
-    w = np.full(x.shape, np.pi / x.size)
-    return x, y, w
-
-
-def square_rule(q: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Midpoint rule on [-1, 1]^2 with q x q points, weights summing to 4."""
-    c = (np.arange(q) + 0.5) / q * 2.0 - 1.0
-    x, y = np.meshgrid(c, c, indexing="ij")
-    return x.ravel(), y.ravel(), np.full(q * q, 4.0 / (q * q))

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.sparse import coo_matrix, csc_matrix
 
+from .geometry import tangent_frame
 from .overlap import alpha_at, patch_quadrature
 from .parallel import WORKERS, threaded
 
@@ -111,10 +112,7 @@ def cosine_directions(normals: np.ndarray, count: int, rng: np.random.Generator)
     phi = 2.0 * np.pi * u2
     x, y = r * np.cos(phi), r * np.sin(phi)
     z = np.sqrt(np.maximum(1.0 - u1, 0.0))
-    helper = np.eye(3)[np.argmin(np.abs(normals), axis=1)]
-    t = np.cross(helper, normals)
-    t /= np.linalg.norm(t, axis=1, keepdims=True)
-    b = np.cross(normals, t)
+    t, b = tangent_frame(normals)
     return x[..., None] * t[:, None] + y[..., None] * b[:, None] + z[..., None] * normals[:, None]
 
 

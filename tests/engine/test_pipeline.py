@@ -110,10 +110,17 @@ def test_every_lamp_lights_a_plane_as_its_closed_form(lit_plane, kind):
     np.testing.assert_allclose(L, RHO * got / np.pi, rtol=1e-9)
 
 
-def test_furnace_through_the_pipeline():
+@pytest.fixture(params=["embree", "numpy"])
+def backend(request):
+    """Each ray backend (rays.py) in turn; one that is not installed fails with its ImportError."""
+    return request.param
+
+
+def test_furnace_through_the_pipeline(backend):
     base = scenes.cube(inward=True)
     s = Surfaces.from_arrays(base.vertices, base.triangles, reflectance=[0.9] * 3, emission=[2.0] * 3)
-    problem = prepare(s, build_atlas(s, AtlasSettings(patch_count=300)))
+    problem = prepare(s, build_atlas(s, AtlasSettings(patch_count=300), backend=backend), backend=backend)
+    assert problem.index.rays.name == backend
     state = solve(problem, settings=SolveSettings(tolerance=1e-5))
     pts, tri = scenes.sample_surface(s, 5000, seed=4)
     L = radiance_at(problem, state.radiosity, pts, tri, 1)
@@ -141,9 +148,10 @@ def test_cornell_box_radiance_is_independent_of_scale():
     np.testing.assert_allclose(out[2], out[1], rtol=1e-6, atol=1e-9)
 
 
-def test_scene_without_light_is_refused():
+def test_scene_without_light_is_refused(backend):
     v, t = scenes.plane()
     s = Surfaces.from_arrays(v, t)
-    problem = prepare(s, build_atlas(s, AtlasSettings(patch_count=50)))
+    problem = prepare(s, build_atlas(s, AtlasSettings(patch_count=50), backend=backend), backend=backend)
+    assert problem.index.rays.name == backend
     with pytest.raises(OvradError, match="no light"):
         solve(problem)

@@ -1,4 +1,6 @@
-"""The embree and numpy ray backends give the same answers."""
+"""The ray backends: embree and numpy give the same answers, and embree scenes share their threads."""
+
+import threading
 
 import numpy as np
 import pytest
@@ -31,3 +33,14 @@ def test_numpy_backend_hits_a_known_triangle_at_the_right_distance():
     t, i = r.closest_hit(np.array([[0.2, 0.2, 3.0], [2.0, 2.0, 3.0]]), np.array([[0, 0, -1.0]] * 2), np.inf)
     assert i.tolist() == [0, -1]
     assert t[0] == pytest.approx(3.0)
+
+
+@pytest.mark.skipif(not has_embree(), reason="embreex not installed")
+def test_embree_indices_leave_no_threads_behind():
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
+    o, d = np.array([[0.2, 0.2, 1.0]]), np.array([[0, 0, -1.0]])
+    make_rays(v, np.array([[0, 1, 2]]), "embree").closest_hit(o, d, np.inf)  # the shared pool exists now
+    before = threading.active_count()
+    for _ in range(20):  # one index per atlas build, prepare or bake
+        assert make_rays(v, np.array([[0, 1, 2]]), "embree").closest_hit(o, d, np.inf)[1].tolist() == [0]
+    assert threading.active_count() == before
