@@ -28,6 +28,7 @@ from collections.abc import Callable
 import numpy as np
 from scipy.stats import qmc
 
+from .geometry import tangent_frame
 from .lights import shadow_origin
 from .overlap import alpha_at, patch_average
 from .parallel import WORKERS, threaded
@@ -59,15 +60,6 @@ def hemisphere_pattern(count: int, seed: int = GATHER_SEED) -> np.ndarray:
     r = np.sqrt(u[:, 0])
     phi = 2.0 * np.pi * u[:, 1]
     return np.column_stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(1.0 - u[:, 0], 0.0))])
-
-
-def tangent_frames(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unit tangents and bitangents (m, 3) of unit normals (m, 3), a function of the normal alone
-    (so equal normals get equal frames)."""
-    helper = np.eye(3)[np.argmin(np.abs(normals), axis=1)]
-    t = np.cross(helper, normals)
-    t /= np.linalg.norm(t, axis=1, keepdims=True)
-    return t, np.cross(normals, t)
 
 
 def sampled_emission(atlas, index, emitters: np.ndarray | None, scale: float = 1.0, q: int = 4) -> np.ndarray:
@@ -115,7 +107,7 @@ def gather_indirect(
         pts = inside(index.surfaces, pts, triangles)
     values = np.asarray(radiosity, np.float64) - np.asarray(emission, np.float64)
     local = hemisphere_pattern(rays)
-    t_all, b_all = tangent_frames(nrm)
+    t_all, b_all = tangent_frame(nrm)
     eps = 1e-6 * index.surfaces.extent
     _ = atlas.grid  # build the lookup once, before the threads need it
     step = max(1, chunk_rays // rays)
