@@ -71,7 +71,7 @@ def draw_solve(layout, props) -> None:
     if job is None:
         layout.operator("ovrad.solve", icon="LIGHT_SUN")
         return
-    p = job.progress()
+    p = job.status()
     box = layout.box()
     box.label(text=f"{'Cancelling' if p.cancelling else 'Solving'}: {100 * p.fraction:.0f}%", icon="TIME")
     box.label(text=p.stage)
