@@ -1,12 +1,16 @@
-"""Atlas objects in the Blender file: every attribute write and read of ovrad happens here."""
+"""The attribute gateway: every attribute ovrad writes, reads or removes goes through here (atlas
+objects' POINT attributes, baked colours and their ownership marks), each write checked."""
 
 from __future__ import annotations
+
+import hashlib
 
 import bpy
 import numpy as np
 
 from ..ovrad_addon import names
 from ..ovrad_addon.atlas import Atlas
+from ..ovrad_addon.errors import OvradError
 
 ATLAS_VERSION = 1
 ATLAS_SUFFIX = "_ovrad_atlas"
@@ -40,20 +44,108 @@ def ensure_collection(scene) -> bpy.types.Collection:
     return coll
 
 
-def write_point_attribute(mesh, name: str, values: np.ndarray, kind: str) -> None:
-    """Create or replace one POINT attribute; values (n,) or (n, k) with n the vertex count."""
-    key, comps, dtype = _LAYOUT[kind]
-    old = mesh.attributes.get(name)
-    if old is not None:
-        mesh.attributes.remove(old)
-    attr = mesh.attributes.new(name, kind, "POINT")
+OWNED_PROP = "ovrad_baked_attributes"  # on a mesh: {attribute name: signature of what ovrad wrote}
+
+# Domain -> number of elements of a mesh in it.
+_DOMAIN_SIZE = {
+    "POINT": lambda mesh: len(mesh.vertices),
+    "EDGE": lambda mesh: len(mesh.edges),
+    "FACE": lambda mesh: len(mesh.polygons),
+    "CORNER": lambda mesh: len(mesh.loops),
+}
+
+
+class AttributeLayoutError(ValueError):
+    """An attribute write whose type, domain or value shape does not fit the mesh (a bug, not a
+    user error)."""
+
+
+def _layout(mesh, name: str, values, kind: str, domain: str) -> np.ndarray:
+    """values as the (n, components) array Blender stores for `kind` in `domain`; raises
+    AttributeLayoutError when the type or domain is unknown or the length does not match."""
+    if kind not in _LAYOUT:
+        raise AttributeLayoutError(
+            f"attribute {name}: unsupported type {kind!r} (known: {', '.join(_LAYOUT)})"
+        )
+    if domain not in _DOMAIN_SIZE:
+        raise AttributeLayoutError(f"attribute {name}: unknown domain {domain!r}")
+    _, comps, dtype = _LAYOUT[kind]
+    n = _DOMAIN_SIZE[domain](mesh)
     a = np.asarray(values, dtype=dtype)
-    a = a.reshape(len(mesh.vertices), -1) if a.size else a.reshape(0, comps)  # an atlas may be empty
+    if a.size == 0 and n == 0:  # an atlas may be empty
+        return a.reshape(0, comps)
+    a = a.reshape(len(a), -1) if a.ndim else a.reshape(1, 1)
+    if len(a) != n:
+        raise AttributeLayoutError(f"attribute {name}: {len(a)} values for {n} elements of domain {domain}")
     if kind == "FLOAT_COLOR" and a.shape[1] == 3:
         a = np.concatenate([a, np.ones((len(a), 1), dtype)], axis=1)
     if a.shape[1] != comps:
-        raise ValueError(f"attribute {name}: expected {comps} components, got {a.shape[1]}")
-    attr.data.foreach_set(key, np.ascontiguousarray(a).ravel())
+        raise AttributeLayoutError(f"attribute {name}: expected {comps} components, got {a.shape[1]}")
+    return np.ascontiguousarray(a)
+
+
+def remove_attribute(mesh, name: str) -> bool:
+    """Remove the attribute `name` if the mesh has it; returns whether it did."""
+    old = mesh.attributes.get(name)
+    if old is None:
+        return False
+    mesh.attributes.remove(old)
+    return True
+
+
+def write_attribute(mesh, name: str, values, kind: str, domain: str = "POINT", color: bool = False):
+    """Create or replace one attribute, checked first (nothing changes if the check fails);
+    values (n,) or (n, k), n the size of the domain. color: made as a colour attribute."""
+    a = _layout(mesh, name, values, kind, domain)
+    remove_attribute(mesh, name)
+    attr = (mesh.color_attributes if color else mesh.attributes).new(name, kind, domain)
+    attr.data.foreach_set(_LAYOUT[kind][0], a.ravel())
+    return attr
+
+
+def write_point_attribute(mesh, name: str, values: np.ndarray, kind: str) -> None:
+    """Create or replace one POINT attribute; values (n,) or (n, k) with n the vertex count."""
+    write_attribute(mesh, name, values, kind, "POINT")
+
+
+def signature(attr) -> str:
+    """Type, domain and a hash of the values of a colour attribute."""
+    if attr.data_type != "FLOAT_COLOR":
+        return attr.data_type
+    values = np.empty(4 * len(attr.data), np.float32)
+    attr.data.foreach_get("color", values)
+    return f"FLOAT_COLOR:{attr.domain}:{hashlib.blake2b(values.tobytes(), digest_size=16).hexdigest()}"
+
+
+def owned(mesh) -> list[str]:
+    """Names of the attributes of `mesh` that are exactly what an ovrad bake wrote."""
+    marks = mesh.get(OWNED_PROP)
+    if not hasattr(marks, "keys"):
+        return []
+    return [n for n in marks.keys() if n in mesh.attributes and signature(mesh.attributes[n]) == marks[n]]
+
+
+def check_target(mesh, name: str) -> None:
+    """Raise OvradError if `name` on `mesh` is an attribute ovrad did not make (never overwrite it)."""
+    existing = mesh.attributes.get(name)
+    if existing is not None and name not in owned(mesh):
+        raise OvradError(
+            f"mesh '{mesh.name}' already has an attribute '{name}' that ovrad did not make: "
+            "choose another attribute name (it is never overwritten)"
+        )
+
+
+def write_color(mesh, name: str, values: np.ndarray, domain: str) -> None:
+    """Create (or replace ovrad's own) FLOAT_COLOR attribute from RGB values (n, 3), alpha 1; mark
+    it as ovrad's and make it the active and render colour."""
+    write_attribute(mesh, name, values, "FLOAT_COLOR", domain, color=True)
+    marks = {n: mesh[OWNED_PROP][n] for n in owned(mesh) if n != name}
+    marks[name] = signature(mesh.attributes[name])
+    mesh[OWNED_PROP] = marks
+    colors = mesh.color_attributes
+    colors.active_color_name = name
+    colors.render_color_index = [a.name for a in colors].index(name)
+    mesh.update()
 
 
 def read_point_attribute(mesh, name: str) -> np.ndarray:

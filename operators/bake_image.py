@@ -1,6 +1,6 @@
 """Bake Image: the solved lighting of the selected meshes into float images, saved as 32-bit linear OpenEXR.
 
-The solution is solve.load_solution(): B = pi x the POINT attribute ovrad_radiosity that Solve
+The solution is solution.load_solution(): B = pi x the POINT attribute ovrad_radiosity that Solve
 wrote on the atlas objects (float32), with the Solve operator's cached problem when the scene still
 matches it, else the patches located again on the surfaces (cheap: no form factors). Values are
 reconstructed at texel centres on the surface with the engine's radiance_at / irradiance_at,
@@ -20,11 +20,10 @@ from bpy.props import EnumProperty, IntProperty, StringProperty
 
 from ..ovrad_addon import bake, names
 from ..ovrad_addon.errors import OvradError
-from ..ovrad_addon.overlap import alpha_at
-from ..ovrad_addon.pipeline import irradiance_at, radiance_at
-from . import attributes, solve
+from ..ovrad_addon.pipeline import bake_sides, irradiance_at, radiance_at
+from . import attributes, mesh_reader
+from .solution import load_solution
 
-IMAGE_SUFFIX = "_ovrad"
 IMAGE_MARK = "ovrad_bake"  # custom property on images this operator made (only those are replaced)
 DEFAULT_PATH = "//ovrad/{object}.exr"
 _CHUNK = 1 << 17  # texels reconstructed at once
@@ -44,46 +43,20 @@ def solved_atlases(scene) -> dict:
 
 def uv_triangles(obj, depsgraph, uv_map: str) -> tuple[np.ndarray, np.ndarray]:
     """UV (T, 3, 2) and world positions (T, 3, 3) of the evaluated mesh's loop triangles."""
-    ev = obj.evaluated_get(depsgraph)
-    mesh = ev.to_mesh()
-    try:
-        layers = mesh.uv_layers
-        if len(layers) == 0:
-            raise OvradError(f"'{obj.name}' has no UV map: unwrap it (UV > Unwrap) before baking to an image")
-        if uv_map:
-            layer = layers.get(uv_map)
-            if layer is None:
-                have = ", ".join(lay.name for lay in layers)
-                raise OvradError(f"'{obj.name}' has no UV map named '{uv_map}' (it has: {have})")
-        else:
-            layer = next((lay for lay in layers if lay.active_render), layers.active or layers[0])
-        nl, nt, nv = len(mesh.loops), len(mesh.loop_triangles), len(mesh.vertices)
-        uv = np.empty(2 * nl, np.float32)
-        layer.data.foreach_get("uv", uv)
-        loops = np.empty(3 * nt, np.int32)
-        mesh.loop_triangles.foreach_get("loops", loops)
-        verts = np.empty(3 * nt, np.int32)
-        mesh.loop_triangles.foreach_get("vertices", verts)
-        co = np.empty(3 * nv, np.float32)
-        mesh.vertices.foreach_get("co", co)
-    finally:
-        ev.to_mesh_clear()
-    m = np.array(ev.matrix_world, dtype=np.float64)
-    world = co.reshape(-1, 3).astype(np.float64) @ m[:3, :3].T + m[:3, 3]
-    return uv.reshape(-1, 2)[loops].reshape(-1, 3, 2).astype(np.float64), world[verts].reshape(-1, 3, 3)
+    data = mesh_reader.read_object(obj, depsgraph, uv_map=uv_map)
+    return data.uv, data.corners
 
 
 def bake_values(problem, radiosity, texels, quantity: str, first_shot=None, light=None) -> np.ndarray:
-    """Radiance (or irradiance / pi) (k, 3) at texel points, seen from the front side where patches
-    cover it, else from the back (an open mesh whose patches are only on its back); direct light
-    computed at the texels when the solve's first shot and light are given."""
+    """Radiance (or irradiance / pi) (k, 3) at texel points, seen from the side pipeline.bake_sides
+    picks for their triangle (as the vertex bake does); direct light computed at the texels when
+    the solve's first shot and light are given."""
     fn = irradiance_at if quantity == "IRRADIANCE" else radiance_at
     out = np.zeros((len(texels), 3))
     for s in range(0, len(texels), _CHUNK):
         sl = slice(s, s + _CHUNK)
         pts, tri = texels.points[sl], texels.triangle[sl]
-        front = alpha_at(problem.atlas, problem.index, pts, tri, 1).getnnz(axis=1) > 0
-        out[sl] = fn(problem, radiosity, pts, tri, np.where(front, 1, -1), first_shot, light)
+        out[sl] = fn(problem, radiosity, pts, tri, bake_sides(problem, tri), first_shot, light)
     # Smooth beta rings slightly below 0 next to contact shadows; light is never negative.
     return np.maximum(out, 0.0)
 
@@ -217,7 +190,7 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
                 jobs.append((obj, uv, world, resolve_path(self.filepath, obj.name)))
             for *_, path in jobs:
                 prepare_folder(path, created)
-            solution = solve.load_solution(context)
+            solution = load_solution(context)
             problem, radiosity, firsts = solution.problem, solution.radiosity, solution.first_triangle
             order = [o.name for o in solution.receivers]
             results = []
@@ -241,7 +214,7 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
                 stored = path
                 if self.filepath.startswith("//"):
                     stored = bpy.path.relpath(path)
-                images.append(write_image(obj.name + IMAGE_SUFFIX, img, path, stored))
+                images.append(write_image(obj.name + names.IMAGE_SUFFIX, img, path, stored))
         except OvradError as e:
             _remove_created(created)
             self.report({"ERROR"}, str(e))

@@ -4,13 +4,12 @@ Values are linear FLOAT_COLOR (alpha 1): outgoing radiance L = B/pi with the sur
 emission (a Cycles DIFFUSE bake with colour, plus emission), or irradiance E/pi. The CORNER domain
 keeps one value per face corner; the POINT domain averages a vertex's corners weighted by their
 angles. An attribute of the bake's name is replaced only if it is exactly what an ovrad bake
-wrote: the mesh keeps, in the custom property OWNED_PROP, each baked attribute's type, domain and
+wrote: the mesh keeps, in the custom property attributes.OWNED_PROP, each baked attribute's type, domain and
 a hash of its values; an attribute the user made, converted or painted over is theirs.
 """
 
 from __future__ import annotations
 
-import hashlib
 import time
 
 import bpy
@@ -18,35 +17,12 @@ import numpy as np
 from bpy.props import EnumProperty, StringProperty
 
 from ..ovrad_addon.errors import OvradError
-from ..ovrad_addon.pipeline import irradiance_at, radiance_at
-from . import solve
+from ..ovrad_addon.pipeline import bake_sides, irradiance_at, radiance_at
+from . import attributes, mesh_reader, solve
+from .solution import load_solution
 
-OWNED_PROP = "ovrad_baked_attributes"  # on a mesh: {attribute name: signature of what ovrad wrote}
 CHUNK = 1 << 18  # corners reconstructed at a time (bounds the sparse alpha matrices)
 NUDGE = 1e-3  # corners are moved this many patch radii into their triangle (see reconstruct)
-
-
-def signature(attr) -> str:
-    """Type, domain and a hash of the values of a colour attribute."""
-    if attr.data_type != "FLOAT_COLOR":
-        return attr.data_type
-    values = np.empty(4 * len(attr.data), np.float32)
-    attr.data.foreach_get("color", values)
-    return f"FLOAT_COLOR:{attr.domain}:{hashlib.blake2b(values.tobytes(), digest_size=16).hexdigest()}"
-
-
-def owned(mesh) -> list[str]:
-    """Names of the attributes of `mesh` that are exactly what an ovrad bake wrote."""
-    marks = mesh.get(OWNED_PROP)
-    if not hasattr(marks, "keys"):
-        return []
-    return [n for n in marks.keys() if n in mesh.attributes and signature(mesh.attributes[n]) == marks[n]]
-
-
-def _ints(collection, key: str, per: int = 1) -> np.ndarray:
-    out = np.empty(len(collection) * per, np.int32)
-    collection.foreach_get(key, out)
-    return out.reshape(-1, per) if per > 1 else out
 
 
 def corner_angles(corners: np.ndarray) -> np.ndarray:
@@ -67,40 +43,27 @@ class ReceiverBake:
 
     def __init__(self, obj, depsgraph, first_triangle: int, n_triangles: int):
         self.obj = obj
-        ev = obj.evaluated_get(depsgraph)
-        mesh = ev.to_mesh()
-        try:
-            co = np.empty(3 * len(mesh.vertices), np.float32)
-            mesh.vertices.foreach_get("co", co)
-            self.tri_verts = _ints(mesh.loop_triangles, "vertices", 3)
-            self.tri_loops = _ints(mesh.loop_triangles, "loops", 3)
-            counts = (len(mesh.vertices), len(mesh.polygons), len(mesh.loops))
-            loop_verts = _ints(mesh.loops, "vertex_index")
-        finally:
-            ev.to_mesh_clear()
+        data = mesh_reader.read_object(obj, depsgraph)
         orig = obj.data
+        counts = (len(data.vertices), data.n_polygons, len(data.loop_vertices))
         if counts != (len(orig.vertices), len(orig.polygons), len(orig.loops)) or not np.array_equal(
-            loop_verts, _ints(orig.loops, "vertex_index")
+            data.loop_vertices, mesh_reader.loop_vertices(orig)
         ):
             raise OvradError(
                 f"the modifiers of '{obj.name}' change its topology, so the bake cannot be stored on its "
                 "mesh: apply the modifiers first"
             )
-        if len(self.tri_verts) != n_triangles:
+        if len(data.triangles) != n_triangles:
             raise OvradError(f"'{obj.name}' changed since it was read: bake again")
-        m = np.array(ev.matrix_world, dtype=np.float64)
-        world = co.reshape(-1, 3).astype(np.float64) @ m[:3, :3].T + m[:3, 3]
-        self.points = world[self.tri_verts]  # (T, 3, 3)
+        self.tri_verts, self.tri_loops = data.triangles, data.loops
+        self.points = data.corners  # (T, 3, 3)
         self.triangles = first_triangle + np.arange(n_triangles)
         self.n_vertices, self.n_loops = counts[0], counts[2]
 
     def reconstruct(self, solution, quantity: str) -> np.ndarray:
         """(T, 3, 3) value at each triangle corner, negative ringing clamped to 0."""
         problem = solution.problem
-        # Bake the side that has patches: the front where it does, else the back (an open mesh
-        # seen from behind only).
-        front = problem.index.sheet_of(self.triangles, np.ones(len(self.triangles), np.int64)) >= 0
-        sides = np.repeat(np.where(front, 1, -1), 3)
+        sides = np.repeat(bake_sides(problem, self.triangles), 3)
         # A vertex on a chart's border lies exactly on the rim of the squares placed along it (and,
         # after float32 storage, just outside): step each corner a hair into its triangle.
         to_centre = self.points.mean(axis=1, keepdims=True) - self.points
@@ -133,34 +96,6 @@ class ReceiverBake:
             # Corners of degenerate triangles only (all angles 0): a plain mean.
             out[:, c] = np.where(den > 0, num / np.maximum(den, 1e-300), plain / np.maximum(cnt, 1))
         return out
-
-
-def check_target(mesh, name: str) -> None:
-    """Raise OvradError if `name` on `mesh` is an attribute ovrad did not make (never overwrite it)."""
-    existing = mesh.attributes.get(name)
-    if existing is not None and name not in owned(mesh):
-        raise OvradError(
-            f"mesh '{mesh.name}' already has an attribute '{name}' that ovrad did not make: "
-            "choose another attribute name (it is never overwritten)"
-        )
-
-
-def write_color(mesh, name: str, values: np.ndarray, domain: str) -> None:
-    """Create (or replace ovrad's own) FLOAT_COLOR attribute; make it the active and render colour."""
-    old = mesh.attributes.get(name)
-    if old is not None:
-        mesh.attributes.remove(old)
-    attr = mesh.color_attributes.new(name, "FLOAT_COLOR", domain)
-    rgba = np.ones((len(values), 4), np.float32)
-    rgba[:, :3] = values
-    attr.data.foreach_set("color", rgba.ravel())
-    marks = {n: mesh[OWNED_PROP][n] for n in owned(mesh) if n != name}
-    marks[name] = signature(mesh.attributes[name])
-    mesh[OWNED_PROP] = marks
-    colors = mesh.color_attributes
-    colors.active_color_name = name
-    colors.render_color_index = [a.name for a in colors].index(name)
-    mesh.update()
 
 
 class OVRAD_OT_bake_vertex(bpy.types.Operator):
@@ -212,7 +147,7 @@ class OVRAD_OT_bake_vertex(bpy.types.Operator):
         try:
             if not name or name.startswith("."):
                 raise OvradError("give the bake an attribute name (not empty, not starting with '.')")
-            solution = solve.load_solution(context)
+            solution = load_solution(context)
             depsgraph = context.evaluated_depsgraph_get()
             surfaces = solution.problem.surfaces
             meshes = {}
@@ -228,7 +163,7 @@ class OVRAD_OT_bake_vertex(bpy.types.Operator):
                     raise OvradError(
                         f"the mesh of '{obj.name}' is linked from a library: make it local first"
                     )
-                check_target(obj.data, name)
+                attributes.check_target(obj.data, name)
                 n_tri = int(np.sum(surfaces.object_index == i))
                 bakes.append(ReceiverBake(obj, depsgraph, solution.first_triangle[i], n_tri))
             values = [b.domain_values(b.reconstruct(solution, quantity), domain) for b in bakes]
@@ -236,7 +171,7 @@ class OVRAD_OT_bake_vertex(bpy.types.Operator):
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
         for bake, vals in zip(bakes, values, strict=True):
-            write_color(bake.obj.data, name, vals, domain)
+            attributes.write_color(bake.obj.data, name, vals, domain)
         count = sum(len(v) for v in values)
         self.report(
             {"INFO"},

@@ -146,21 +146,14 @@ def ensure_material() -> bpy.types.Material:
     return mat
 
 
-def _build_tree(ng, material) -> None:
-    ng.nodes.clear()
-    ng.interface.clear()
-    ng.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
-    for name, (stype, default, lo, hi, desc) in INPUTS.items():
-        s = ng.interface.new_socket(name, in_out="INPUT", socket_type=stype)
-        s.default_value, s.description = default, desc
-        if lo is not None:
-            s.min_value, s.max_value = lo, hi
-    ng.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
-    nodes, link = ng.nodes, ng.links.new
-    gin, gout = nodes.new("NodeGroupInput"), nodes.new("NodeGroupOutput")
+class _Builder:
+    """Adds nodes to a node group, linking sockets given as inputs and setting plain values."""
 
-    def node(idname, inputs=(), **props):
-        n = nodes.new(idname)
+    def __init__(self, ng):
+        self.nodes, self.link = ng.nodes, ng.links.new
+
+    def node(self, idname, inputs=(), **props):
+        n = self.nodes.new(idname)
         for k, v in props.items():
             setattr(n, k, v)
         for key, v in inputs:
@@ -170,100 +163,139 @@ def _build_tree(ng, material) -> None:
                 if isinstance(key, int)
                 else next(s for s in n.inputs if key in (s.identifier, s.name))
             )
-            link(v, sock) if isinstance(v, bpy.types.NodeSocket) else setattr(sock, "default_value", v)
+            self.link(v, sock) if isinstance(v, bpy.types.NodeSocket) else setattr(sock, "default_value", v)
         return n
 
-    def named(name, dtype):
-        return node("GeometryNodeInputNamedAttribute", [("Name", name)], data_type=dtype).outputs["Attribute"]
+    def named(self, name, dtype):
+        node = self.node("GeometryNodeInputNamedAttribute", [("Name", name)], data_type=dtype)
+        return node.outputs["Attribute"]
 
-    def math(op, a, b=None, idname="ShaderNodeMath"):
-        return node(idname, [(0, a)] + ([(1, b)] if b is not None else []), operation=op).outputs[0]
+    def math(self, op, a, b=None, idname="ShaderNodeMath"):
+        return self.node(idname, [(0, a)] + ([(1, b)] if b is not None else []), operation=op).outputs[0]
 
-    normal, tangent = named(names.NORMAL, "FLOAT_VECTOR"), named(names.TANGENT, "FLOAT_VECTOR")
-    radius, shape = named(names.RADIUS, "FLOAT"), named(names.SHAPE, "INT")
-    rnd = named(names.RANDOM, "FLOAT")
-    quantity = gin.outputs["Quantity"]
+    def compare(self, a, b):
+        """1 where the integers a and b are equal, else 0."""
+        node = self.node(
+            "FunctionNodeCompare", [("A_INT", a), ("B_INT", b)], data_type="INT", operation="EQUAL"
+        )
+        return node.outputs[0]
 
-    # Lift each patch off its surface by a per-patch amount, so coplanar neighbours do not z-fight.
-    lift = math("MULTIPLY", math("MULTIPLY", radius, gin.outputs["Lift"]), math("ADD", rnd, 1.0))
-    offset = node("ShaderNodeVectorMath", [(0, normal), ("Scale", lift)], operation="SCALE").outputs[0]
-    points = node(
-        "GeometryNodeSetPosition", [("Geometry", gin.outputs["Geometry"]), ("Offset", offset)]
-    ).outputs[0]
-
-    # The chosen quantity as one colour per patch.
-    ramp = node(
-        "ShaderNodeValToRGB", [(0, math("DIVIDE", named(names.OVERLAP, "INT"), gin.outputs["Overlap Max"]))]
-    )
-    _ramp(ramp)
-    hsv = node("FunctionNodeCombineColor", [(0, rnd), (1, 0.65), (2, 0.95)], mode="HSV")
-    switch = node("GeometryNodeIndexSwitch", [("Index", quantity)], data_type="RGBA")
-    switch.index_switch_items.new()
-    switch.index_switch_items.new()
-    link(ramp.outputs["Color"], switch.inputs[1])
-    link(hsv.outputs[0], switch.inputs[2])
-    link(hsv.outputs[0], switch.inputs[3])  # beta: the material multiplies it by the profile
-    link(named(names.RADIOSITY, "FLOAT_COLOR"), switch.inputs[4])
-    # Which beta the material draws: weights of (box, smooth disk, smooth square), all 0 unless Quantity is 2.
-    show = node(
-        "FunctionNodeCompare", [("A_INT", quantity), ("B_INT", 2)], data_type="INT", operation="EQUAL"
-    )
-    smooth = math("MULTIPLY", show.outputs[0], gin.outputs["Smooth Beta"])
-    sq = math("MULTIPLY", smooth, shape)
-    weights = node(
-        "ShaderNodeCombineXYZ",
-        [(0, math("SUBTRACT", show.outputs[0], smooth)), (1, math("SUBTRACT", smooth, sq)), (2, sq)],
-    )
-
-    def store(geo, name, dtype, value, domain="POINT"):
-        n = node(
+    def store(self, geo, name, dtype, value, domain="POINT"):
+        n = self.node(
             "GeometryNodeStoreNamedAttribute",
             [("Geometry", geo), ("Name", name)],
             data_type=dtype,
             domain=domain,
         )
-        link(value, n.inputs["Value"])
+        self.link(value, n.inputs["Value"])
         return n.outputs[0]
 
-    points = store(points, DISPLAY_COLOR, "FLOAT_COLOR", switch.outputs[0])
-    points = store(points, DISPLAY_BETA, "FLOAT_VECTOR", weights.outputs[0])
-    points = store(points, DISPLAY_ALPHA, "FLOAT", gin.outputs["Opacity"])
-    points = store(points, DISPLAY_RIM, "FLOAT", math("SUBTRACT", 1.0, gin.outputs["Outline"]))
 
-    # Unit disk (radius 1) and unit square (side 2): a vertex's position is its coordinate in the patch.
-    circle = node(
+def _build_interface(ng) -> None:
+    """Geometry in, the modifier's INPUTS, geometry out."""
+    ng.interface.clear()
+    ng.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+    for name, (stype, default, lo, hi, desc) in INPUTS.items():
+        s = ng.interface.new_socket(name, in_out="INPUT", socket_type=stype)
+        s.default_value, s.description = default, desc
+        if lo is not None:
+            s.min_value, s.max_value = lo, hi
+    ng.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+
+
+def _lifted_points(b: _Builder, gin, normal, radius, rnd):
+    """The patch points lifted off their surface by a per-patch amount, so coplanar neighbours do
+    not z-fight."""
+    lift = b.math("MULTIPLY", b.math("MULTIPLY", radius, gin.outputs["Lift"]), b.math("ADD", rnd, 1.0))
+    offset = b.node("ShaderNodeVectorMath", [(0, normal), ("Scale", lift)], operation="SCALE").outputs[0]
+    return b.node(
+        "GeometryNodeSetPosition", [("Geometry", gin.outputs["Geometry"]), ("Offset", offset)]
+    ).outputs[0]
+
+
+def _patch_colour(b: _Builder, gin, rnd):
+    """The chosen quantity as one colour per patch."""
+    overlap = b.math("DIVIDE", b.named(names.OVERLAP, "INT"), gin.outputs["Overlap Max"])
+    ramp = b.node("ShaderNodeValToRGB", [(0, overlap)])
+    _ramp(ramp)
+    hsv = b.node("FunctionNodeCombineColor", [(0, rnd), (1, 0.65), (2, 0.95)], mode="HSV")
+    switch = b.node("GeometryNodeIndexSwitch", [("Index", gin.outputs["Quantity"])], data_type="RGBA")
+    switch.index_switch_items.new()
+    switch.index_switch_items.new()
+    b.link(ramp.outputs["Color"], switch.inputs[1])
+    b.link(hsv.outputs[0], switch.inputs[2])
+    b.link(hsv.outputs[0], switch.inputs[3])  # beta: the material multiplies it by the profile
+    b.link(b.named(names.RADIOSITY, "FLOAT_COLOR"), switch.inputs[4])
+    return switch.outputs[0]
+
+
+def _beta_weights(b: _Builder, gin, shape):
+    """Which beta the material draws: weights of (box, smooth disk, smooth square), all 0 unless
+    Quantity is 2."""
+    show = b.compare(gin.outputs["Quantity"], 2)
+    smooth = b.math("MULTIPLY", show, gin.outputs["Smooth Beta"])
+    sq = b.math("MULTIPLY", smooth, shape)
+    weights = b.node(
+        "ShaderNodeCombineXYZ",
+        [(0, b.math("SUBTRACT", show, smooth)), (1, b.math("SUBTRACT", smooth, sq)), (2, sq)],
+    )
+    return weights.outputs[0]
+
+
+def _patch_instances(b: _Builder, gin, points, normal, tangent, radius, shape):
+    """A unit disk (radius 1) or unit square (side 2) on each point, turned and scaled to its patch;
+    a vertex's DISPLAY_LOCAL is its coordinate in the patch."""
+    circle = b.node(
         "GeometryNodeMeshCircle",
         [("Vertices", gin.outputs["Disk Vertices"]), ("Radius", 1.0)],
         fill_type="NGON",
     )
-    grid = node(
+    grid = b.node(
         "GeometryNodeMeshGrid", [("Size X", 2.0), ("Size Y", 2.0), ("Vertices X", 2), ("Vertices Y", 2)]
     )
-    position = node("GeometryNodeInputPosition").outputs[0]
-    rotation = node(
+    position = b.node("GeometryNodeInputPosition").outputs[0]
+    rotation = b.node(
         "FunctionNodeAxesToRotation", [(0, normal), (1, tangent)], primary_axis="Z", secondary_axis="X"
     ).outputs[0]
-    join = node("GeometryNodeJoinGeometry")
+    join = b.node("GeometryNodeJoinGeometry")
     for kind, mesh in ((names.SHAPE_DISK, circle), (names.SHAPE_SQUARE, grid)):
-        unit = store(mesh.outputs["Mesh"], DISPLAY_LOCAL, "FLOAT_VECTOR", position)
-        is_kind = node(
-            "FunctionNodeCompare", [("A_INT", shape), ("B_INT", kind)], data_type="INT", operation="EQUAL"
-        )
-        inst = node(
+        unit = b.store(mesh.outputs["Mesh"], DISPLAY_LOCAL, "FLOAT_VECTOR", position)
+        inst = b.node(
             "GeometryNodeInstanceOnPoints",
             [
                 ("Points", points),
-                ("Selection", is_kind.outputs[0]),
+                ("Selection", b.compare(shape, kind)),
                 ("Instance", unit),
                 ("Rotation", rotation),
                 ("Scale", radius),
             ],
         )
-        link(inst.outputs[0], join.inputs[0])
-    real = node("GeometryNodeRealizeInstances", [("Geometry", join.outputs[0])])
-    setmat = node("GeometryNodeSetMaterial", [("Geometry", real.outputs[0]), ("Material", material)])
-    link(setmat.outputs[0], gout.inputs["Geometry"])
-    for i, n in enumerate(nodes):
+        b.link(inst.outputs[0], join.inputs[0])
+    return join.outputs[0]
+
+
+def _build_tree(ng, material) -> None:
+    """The display: lifted points carry their colour, beta weights, opacity and rim, then become
+    disk and square instances, realised, with the display material."""
+    ng.nodes.clear()
+    _build_interface(ng)
+    b = _Builder(ng)
+    gin, gout = b.nodes.new("NodeGroupInput"), b.nodes.new("NodeGroupOutput")
+    normal, tangent = b.named(names.NORMAL, "FLOAT_VECTOR"), b.named(names.TANGENT, "FLOAT_VECTOR")
+    radius, shape = b.named(names.RADIUS, "FLOAT"), b.named(names.SHAPE, "INT")
+    rnd = b.named(names.RANDOM, "FLOAT")
+    points = _lifted_points(b, gin, normal, radius, rnd)
+    colour = _patch_colour(b, gin, rnd)
+    weights = _beta_weights(b, gin, shape)
+    points = b.store(points, DISPLAY_COLOR, "FLOAT_COLOR", colour)
+    points = b.store(points, DISPLAY_BETA, "FLOAT_VECTOR", weights)
+    points = b.store(points, DISPLAY_ALPHA, "FLOAT", gin.outputs["Opacity"])
+    points = b.store(points, DISPLAY_RIM, "FLOAT", b.math("SUBTRACT", 1.0, gin.outputs["Outline"]))
+    patches = _patch_instances(b, gin, points, normal, tangent, radius, shape)
+    real = b.node("GeometryNodeRealizeInstances", [("Geometry", patches)])
+    setmat = b.node("GeometryNodeSetMaterial", [("Geometry", real.outputs[0]), ("Material", material)])
+    b.link(setmat.outputs[0], gout.inputs["Geometry"])
+    for i, n in enumerate(b.nodes):
         n.location = (200 * (i % 8), -180 * (i // 8))
 
 

@@ -14,7 +14,7 @@ import json
 import bpy
 
 from ..ovrad_addon.errors import OvradError
-from . import bake_vertex
+from . import attributes
 
 PREVIEW_PROP = "ovrad_preview"  # material: JSON record of what the preview changed; our nodes: 1
 SLOTS_PROP = "ovrad_preview_slots"  # object: indices of empty slots the preview filled
@@ -118,7 +118,7 @@ def setup(scene, attribute: str) -> tuple[int, list[str]]:
     targets = [
         o
         for o in scene.objects
-        if o.type == "MESH" and attribute in bake_vertex.owned(o.data) and attribute in o.data.attributes
+        if o.type == "MESH" and attribute in attributes.owned(o.data) and attribute in o.data.attributes
     ]
     if not targets:
         raise OvradError(f"no mesh in the scene has a baked '{attribute}': bake vertex colours first")

@@ -10,8 +10,11 @@ from ..ovrad_addon.pipeline import SolveSettings
 from ..ovrad_addon.settings import AtlasSettings, ObjectSettings
 from . import attributes, display
 
-# The panel's defaults are the engine's.
-_ENGINE = SolveSettings()
+# Every default that the engine's settings have is read from them (one default per setting); only
+# patch_size, which the engine derives from the count when none is given, has its own here.
+_ATLAS = AtlasSettings()
+_OBJECT = ObjectSettings()
+_SOLVE = SolveSettings()
 
 
 def _update_display(self, context) -> None:
@@ -36,7 +39,7 @@ class OVRAD_PG_settings(bpy.types.PropertyGroup):
     patch_count: IntProperty(
         name="Patch Count",
         description="Target number of patches over all selected meshes",
-        default=2000,
+        default=_ATLAS.patch_count,
         min=1,
         soft_max=100_000,
     )
@@ -52,7 +55,7 @@ class OVRAD_PG_settings(bpy.types.PropertyGroup):
     overlap: FloatProperty(
         name="Overlap",
         description="Patch radius over the smallest radius that covers its grid cell (1: just covering)",
-        default=1.3,
+        default=_ATLAS.overlap,
         min=1.0,
         max=4.0,
     )
@@ -63,7 +66,7 @@ class OVRAD_PG_settings(bpy.types.PropertyGroup):
             ("smooth", "Smooth", "1 at the centre falling continuously to 0 at the rim: smooth blends"),
             ("box", "Box", "Constant over the patch: uniform averages where patches overlap"),
         ),
-        default="smooth",
+        default=_ATLAS.beta,
     )
     shapes: EnumProperty(
         name="Shapes",
@@ -73,12 +76,12 @@ class OVRAD_PG_settings(bpy.types.PropertyGroup):
             ("DISKS", "Disks", "Disks everywhere"),
             ("SQUARES", "Squares", "Squares everywhere"),
         ),
-        default="AUTO",
+        default=_ATLAS.shapes,
     )
     max_patches: IntProperty(
         name="Patch Limit",
         description="Refuse to make more patches than this (memory and time grow with the count)",
-        default=200_000,
+        default=_ATLAS.max_patches,
         min=1,
     )
     display_quantity: EnumProperty(
@@ -96,7 +99,7 @@ class OVRAD_PG_settings(bpy.types.PropertyGroup):
     solve_tolerance: FloatProperty(
         name="Tolerance",
         description="Stop when the light not yet shot is below this fraction of the light emitted",
-        default=_ENGINE.tolerance,
+        default=_SOLVE.tolerance,
         min=1e-6,
         max=0.5,
         precision=4,
@@ -113,12 +116,12 @@ class OVRAD_PG_settings(bpy.types.PropertyGroup):
             ),
             ("paper", "Paper", "The paper's published distribution rule (for comparison)"),
         ),
-        default="exact",
+        default=_SOLVE.rule,
     )
     rays_per_point: IntProperty(
         name="Rays per Point",
         description="Hemisphere rays cast from each surface sample for the form factors (more: less noise)",
-        default=_ENGINE.rays_per_point,
+        default=_SOLVE.rays_per_point,
         min=1,
         max=4096,
         soft_max=1024,
@@ -129,7 +132,7 @@ class OVRAD_PG_settings(bpy.types.PropertyGroup):
             "Transport rays cast at least, in all: a small atlas gets more surface samples and "
             "rays per sample until it reaches this many (0: exactly Rays per Point)"
         ),
-        default=_ENGINE.min_rays,
+        default=_SOLVE.min_rays,
         min=0,
         max=1 << 28,
         soft_max=1 << 26,
@@ -213,7 +216,7 @@ class OVRAD_PG_object(bpy.types.PropertyGroup):
     density: FloatProperty(
         name="Density",
         description="Patch density multiplier on this object (2: patches half the size)",
-        default=1.0,
+        default=_OBJECT.density,
         min=1e-3,
         max=999.0,
         soft_min=0.1,
@@ -231,7 +234,7 @@ class OVRAD_PG_object(bpy.types.PropertyGroup):
             ("FRONT", "Front", "Only the side the normals point to"),
             ("BOTH", "Both", "Both sides (a two-sided card or wall)"),
         ),
-        default="AUTO",
+        default=_OBJECT.sides,
     )
 
 

@@ -10,8 +10,9 @@ import numpy as np
 
 from ..ovrad_addon import names
 from ..ovrad_addon.errors import OvradError
-from ..ovrad_addon.lights import Lamp
+from ..ovrad_addon.lights import Lamp, lamp_area
 from ..ovrad_addon.surfaces import Surfaces
+from . import mesh_reader
 
 # What a surface gets when its material cannot be read (and what Blender renders without a material).
 DEFAULT_REFLECTANCE = (0.8, 0.8, 0.8)
@@ -99,30 +100,12 @@ def material_colors(material, warnings: list[str]) -> tuple[np.ndarray, np.ndarr
 
 def _read_mesh(obj, depsgraph, warnings: list[str]):
     """(vertices (V, 3) world, triangles (T, 3), reflectance (T, 3), emission (T, 3)) of one object."""
-    ev = obj.evaluated_get(depsgraph)
-    mesh = ev.to_mesh()
-    try:
-        nv, nt = len(mesh.vertices), len(mesh.loop_triangles)
-        co = np.empty(3 * nv, np.float32)
-        mesh.vertices.foreach_get("co", co)
-        tri = np.empty(3 * nt, np.int32)
-        mesh.loop_triangles.foreach_get("vertices", tri)
-        mat_index = np.empty(nt, np.int32)
-        mesh.loop_triangles.foreach_get("material_index", mat_index)
-        slots = [s.material for s in ev.material_slots] or list(mesh.materials)
-    finally:
-        ev.to_mesh_clear()
-    m = np.array(ev.matrix_world, dtype=np.float64)
-    verts = co.reshape(-1, 3).astype(np.float64) @ m[:3, :3].T + m[:3, 3]
-    tri = tri.reshape(-1, 3).astype(np.int64)
-    if np.linalg.det(m[:3, :3]) < 0.0:
-        # A mirroring matrix turns faces inside out; flipping the winding keeps normals as Blender shows them.
-        tri = tri[:, [0, 2, 1]]
-    colors = [material_colors(mat, warnings) for mat in slots] or [material_colors(None, warnings)]
-    slot = np.clip(mat_index, 0, len(colors) - 1)
+    data = mesh_reader.read_object(obj, depsgraph)
+    colors = [material_colors(mat, warnings) for mat in data.materials] or [material_colors(None, warnings)]
+    slot = np.clip(data.material_index, 0, len(colors) - 1)
     rho = np.array([c[0] for c in colors])[slot]
     em = np.array([c[1] for c in colors])[slot]
-    return verts, tri, rho, em
+    return data.vertices, data.triangles, rho, em
 
 
 def default_occluders(context, receivers) -> list:
@@ -265,7 +248,7 @@ def read_lamps(depsgraph, warnings: list[str] | None = None) -> tuple[Lamp, ...]
                     f"area lamp '{obj.name}' has spread {np.degrees(spread):.0f} degrees: taken as 180 "
                     "(a plain diffuse emitter)"
                 )
-            area = size_x * size_y * (np.pi / 4 if shape in ("DISK", "ELLIPSE") else 1.0)
+            area = lamp_area(shape, size_x, size_y)
             lamps.append(
                 Lamp(
                     "AREA",

@@ -21,6 +21,8 @@ PROP_BETA = "ovrad_beta"  # beta profile the atlas was built with ("box" or "smo
 PROP_VERSION = "ovrad_atlas_version"
 PROP_LIGHT_KEY = "ovrad_light_key"  # hash of the lamps and emission the stored solve used
 
+IMAGE_SUFFIX = "_ovrad"  # an image bake of object X is the image data block X + IMAGE_SUFFIX
+
 COLLECTION = "ovrad"
 DISPLAY_NODE_GROUP = "ovrad_patch_display"
 DISPLAY_MODIFIER = "ovrad display"

@@ -7,7 +7,6 @@ run again with other lamp powers or emission strengths without recomputing form 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -21,6 +20,7 @@ from .lights import Lamp
 from .overlap import alpha_at, overlap_matrix, patch_average, patch_quadrature, reconstruct
 from .progress import StageCallback, report_stage
 from .settings import AtlasSettings, ObjectSettings
+from .solver import Progress as SolveProgressCallback
 from .solver import SolveState, factorize, inverse_areas, solve_progressive
 from .surfaces import Surfaces
 from .transport import Transport, gather_transport
@@ -117,6 +117,21 @@ def _all_sheets_view(index: SurfaceIndex) -> SurfaceIndex:
     return replace(index, sheet_table=np.zeros_like(index.sheet_table))
 
 
+def both_sides_index(surfaces: Surfaces, backend: str = "auto") -> SurfaceIndex:
+    """The surfaces indexed with both sides of every chart as a sheet (sides=BOTH on every object):
+    the index a solve and a reconstruction use, whatever sides the atlas was generated with (its
+    patches only occupy the sheets they lie on)."""
+    sides = AtlasSettings(objects=tuple(ObjectSettings(sides="BOTH") for _ in surfaces.object_names))
+    return index_surfaces(surfaces, sides, backend)
+
+
+def locate(surfaces: Surfaces, atlas: Atlas, backend: str = "auto") -> Problem:
+    """A problem for reconstruction only (no C, no transport): the surfaces indexed as prepare()
+    indexes them and the patches re-attached to their sheets. Much cheaper than prepare()."""
+    index = both_sides_index(surfaces, backend)
+    return Problem(surfaces, attach_sheets(atlas, index), index, None, None, 0, {})
+
+
 def prepare(
     surfaces: Surfaces,
     atlas: Atlas,
@@ -131,10 +146,7 @@ def prepare(
     seconds = {}
     t0 = time.perf_counter()
     report_stage(progress, 0.0, "indexing surfaces")
-    n_obj = len(surfaces.object_names)
-    index = index_surfaces(
-        surfaces, AtlasSettings(objects=tuple(ObjectSettings(sides="BOTH") for _ in range(n_obj))), backend
-    )
+    index = both_sides_index(surfaces, backend)
     atlas = attach_sheets(atlas, index)
     seconds["index"] = time.perf_counter() - t0
     report_stage(progress, 0.05, "integrating overlaps")
@@ -226,14 +238,15 @@ def solve(
     lamps: tuple[Lamp, ...] = (),
     settings: SolveSettings = SolveSettings(),
     emission_scale: float = 1.0,
-    progress: Callable[[float, float, float, int], bool] | None = None,
+    progress: SolveProgressCallback = None,
     state: SolveState | None = None,
 ) -> SolveState:
     """Progressive solve of (C - R) B = C E, with lamps and emitters shot first explicitly.
 
     The first shot sends the lamps' and the emitters' light straight to every receiver point
     (shadow rays), which is far more accurate for small bright sources than hemisphere rays.
-    Radiosity B (n, 3) is exitance in W/m^2; radiance is B / pi.
+    Radiosity B (n, 3) is exitance in W/m^2; radiance is B / pi. progress receives a
+    solver.SolveProgress (with the state) after each step; returning False cancels.
     """
     atlas = problem.atlas
     E = patch_emission(problem, emission_scale)
@@ -271,6 +284,17 @@ def solve(
         state=state,
         reference_power=float(np.sum(atlas.effective_area[:, None] * np.abs(state.radiosity))),
     )
+
+
+def bake_sides(problem: Problem, triangles) -> np.ndarray:
+    """(m,) int64 +1 or -1: the side of each triangle a bake reconstructs, the front where the
+    front sheet of its chart holds patches, else the back (an open mesh whose patches lie on its
+    back only). One rule for every bake point of a triangle, so vertices and texels agree."""
+    tri = np.asarray(triangles, np.int64)
+    index = problem.index
+    occupied = np.bincount(problem.atlas.sheet, minlength=len(index.sheet_chart)) > 0
+    front = index.sheet_of(tri, np.ones(len(tri), np.int64))
+    return np.where((front >= 0) & occupied[np.maximum(front, 0)], 1, -1).astype(np.int64)
 
 
 def _at_points(problem: Problem, radiosity, points, triangles, sides, first_shot, light):

@@ -45,7 +45,21 @@ class SolveState:
     first_shot: np.ndarray | None = None
 
 
-Progress = Callable[[float, float, float, int], bool] | None
+@dataclass(frozen=True)
+class SolveProgress:
+    """What a solve reports after each step: fraction done (0..1), unshot power over the reference,
+    elapsed seconds, rays cast so far, and the state itself (read it, e.g. to show the current
+    radiosity; it is updated in place as the solve goes on)."""
+
+    fraction: float
+    unshot: float
+    elapsed: float
+    rays: int
+    state: SolveState
+
+
+# Called after each shooting step; returning False cancels the solve.
+Progress = Callable[[SolveProgress], bool] | None
 
 
 def diagonal_shift(diagonal: np.ndarray) -> np.ndarray:
@@ -92,8 +106,8 @@ def solve_progressive(
 
     C (n x n sparse), transport (R, see transport.py), emission E (n, 3) per
     patch exitance.
-    progress(fraction_done, unshot_fraction, elapsed, rays) returning False cancels: the state
-    returned is then the last consistent one (every state is a valid radiosity).
+    progress(SolveProgress) returning False cancels: the state returned is then the last
+    consistent one (every state is a valid radiosity).
     reference_power: what unshot power is measured against (default: the emitted power).
     """
     if rule not in ("exact", "paper"):
@@ -143,7 +157,8 @@ def solve_progressive(
         st.elapsed = time.perf_counter() - t0
         if progress is not None:
             done = 1.0 - np.log(max(frac, tolerance) / tolerance) / max(np.log(start_frac / tolerance), 1e-12)
-            if progress(float(np.clip(done, 0, 1)), frac, st.elapsed, st.rays) is False:
+            report = SolveProgress(float(np.clip(done, 0, 1)), frac, st.elapsed, st.rays, st)
+            if progress(report) is False:
                 break
     return st
 
@@ -184,4 +199,4 @@ def solve_direct(C, transport, emission: np.ndarray) -> np.ndarray:
     return np.column_stack(out)
 
 
-__all__ = ["SolveState", "solve_direct", "solve_progressive", "unshot_fraction"]
+__all__ = ["Progress", "SolveProgress", "SolveState", "solve_direct", "solve_progressive", "unshot_fraction"]

@@ -128,26 +128,26 @@ def parse(argv: list[str]) -> argparse.Namespace:
     return args
 
 
-def visible_meshes(scene) -> list:
-    """Every mesh that renders and is visible, except ovrad atlas objects."""
+def visible_meshes(scene, names) -> list:
+    """Every mesh that renders and is visible, except ovrad atlas objects (names: ovrad's names module)."""
     return [
         o
         for o in bpy.context.view_layer.objects
-        if o.type == "MESH" and "ovrad_source" not in o and not o.hide_render and o.visible_get()
+        if o.type == "MESH" and names.PROP_SOURCE not in o and not o.hide_render and o.visible_get()
     ]
 
 
-def pick_receivers(scene, names: list[str] | None) -> list:
-    if not names:
-        found = visible_meshes(scene)
+def pick_receivers(scene, wanted: list[str] | None, names) -> list:
+    if not wanted:
+        found = visible_meshes(scene, names)
         if not found:
             raise BatchError("the scene has no visible mesh to bake")
         return found
     out = []
-    for name in names:
+    for name in wanted:
         obj = scene.objects.get(name)
         if obj is None:
-            meshes = ", ".join(o.name for o in visible_meshes(scene)) or "none"
+            meshes = ", ".join(o.name for o in visible_meshes(scene, names)) or "none"
             raise BatchError(f"no object named '{name}' in the scene (meshes: {meshes})")
         if obj.type != "MESH":
             raise BatchError(f"'{name}' is not a mesh ({obj.type.lower()})")
@@ -227,44 +227,18 @@ def check_writable(path: str, what: str) -> None:
 
 
 def run_solve(module) -> dict:
-    """Run ovrad.solve; return its statistics (rays, unshot fraction, shots, converged).
-
-    Read from the scene's "ovrad_solve" record when the Solve operator writes one, else taken from
-    the finished job that operators/solve.py's finish() sees (wrapped for the duration of the call).
-    """
-    solve_mod = getattr(getattr(module, "operators", None), "solve", None)
-    seen = []
-    original = getattr(solve_mod, "finish", None)
-    if original is not None:
-
-        def finish(scene, job, saved):
-            seen.append(job)
-            return original(scene, job, saved)
-
-        solve_mod.finish = finish
+    """Run ovrad.solve; return its statistics (rays, unshot fraction, shots, converged, ...), which
+    the finished job reports to the listener the solve operators offer."""
+    jobs = []
+    remove = module.operators.solve.add_listener(jobs.append)
     try:
         operator(bpy.ops.ovrad.solve)
     finally:
-        if original is not None:
-            solve_mod.finish = original
-    record = bpy.context.scene.get("ovrad_solve")
-    if record is not None:
-        return {k: record[k] for k in record.keys()}
-    if not seen or seen[-1].state is None:
-        return {}
-    job = seen[-1]
-    st = job.state
-    return {
-        "rays": int(st.rays),
-        "transport_rays": int(job.problem.rays),
-        "form_factors_reused": bool(job.reused),
-        "shots": int(st.shots),
-        "unshot_fraction": float(st.history[-1][1]) if st.history else 0.0,
-        "converged": bool(st.converged),
-    }
+        remove()
+    return jobs[-1].stats() if jobs else {}
 
 
-def show_bake(obj, args) -> np.ndarray:
+def show_bake(obj, args, names) -> np.ndarray:
     """Give a receiver an emission-only material showing its bake; return its baked RGB values."""
     mat = bpy.data.materials.new(f"{obj.name}_ovrad_picture")
     if mat.node_tree is None:
@@ -282,7 +256,7 @@ def show_bake(obj, args) -> np.ndarray:
             data.data.foreach_get("color", values)
     else:
         src = tree.nodes.new("ShaderNodeTexImage")
-        src.image = bpy.data.images.get(obj.name + "_ovrad")
+        src.image = bpy.data.images.get(obj.name + names.IMAGE_SUFFIX)
         values = np.empty(len(src.image.pixels) if src.image else 0, np.float32)
         if src.image:
             src.image.pixels.foreach_get(values)
@@ -297,12 +271,12 @@ def show_bake(obj, args) -> np.ndarray:
     return values[values[:, 3] > 0, :3]
 
 
-def render_picture(scene, receivers, atlases, args) -> None:
+def render_picture(scene, receivers, atlases, args, names) -> None:
     """After saving: receivers show their bake as emission, lamps and atlases hidden, Cycles, no bounces."""
     for obj in scene.objects:
         if obj.type == "LIGHT" or obj in atlases:
             obj.hide_render = True
-    values = np.concatenate([np.zeros((1, 3))] + [show_bake(o, args) for o in receivers])
+    values = np.concatenate([np.zeros((1, 3))] + [show_bake(o, args, names) for o in receivers])
     bright = float(np.percentile(values.max(axis=1), 95))  # exposure: this maps to 0.8
     c = scene.cycles
     scene.render.engine, c.device, c.samples = "CYCLES", "CPU", args.picture_samples
@@ -323,8 +297,8 @@ def render_picture(scene, receivers, atlases, args) -> None:
     bpy.ops.render.render(write_still=True)
 
 
-def run(args) -> dict:
-    start = time.perf_counter()
+def open_input(args) -> tuple[str, str]:
+    """Open --input (if given) and check every file the batch will write; (input, output) paths."""
     if args.input:
         if not os.path.isfile(args.input):
             raise BatchError(f"cannot open '{args.input}': no such file")
@@ -335,28 +309,19 @@ def run(args) -> dict:
     for path, what in ((out, "output"), (args.report, "report"), (args.picture, "picture")):
         if path:
             check_writable(path, what)
-    module = enable_ovrad()
-    scene = bpy.context.scene
-    if args.picture and scene.camera is None:
-        raise BatchError("the scene has no camera to render --picture from")
-    props = scene.ovrad
-    apply_settings(props, args)
-    receivers = pick_receivers(scene, args.receivers)
-    seconds = {}
+    return src, out
 
+
+def generate(scene, receivers, names) -> list:
+    """Generate the receivers' atlases; returns the atlas objects."""
     select(receivers)
-    t = time.perf_counter()
     operator(bpy.ops.ovrad.generate_atlas)
-    seconds["generate"] = time.perf_counter() - t
-    names = {o.name for o in receivers}
-    atlases = [o for o in scene.objects if o.get("ovrad_source") in names]
+    chosen = {o.name for o in receivers}
+    return [o for o in scene.objects if o.get(names.PROP_SOURCE) in chosen]
 
-    t = time.perf_counter()
-    stats = run_solve(module)
-    seconds["solve"] = time.perf_counter() - t
 
-    t = time.perf_counter()
-    images, skipped = [], []
+def bake(args, receivers, out: str, names) -> tuple[list[str], list[str]]:
+    """Bake to vertex colours or images; returns (image files, receivers not baked for lack of UVs)."""
     if args.target == "vertex":
         operator(
             bpy.ops.ovrad.bake_vertex,
@@ -364,49 +329,94 @@ def run(args) -> dict:
             domain=args.domain,
             quantity=args.quantity.upper(),
         )
-    else:
-        with_uv = [o for o in receivers if len(o.data.uv_layers)]
-        skipped = [o.name for o in receivers if o not in with_uv]
-        if not with_uv:
-            raise BatchError(
-                "no receiver has a UV map to bake an image through: unwrap them or use --target vertex"
-            )
-        for name in skipped:
-            print(f"ovrad: '{name}' has no UV map: not baked to an image", flush=True)
-        template = args.image_path or os.path.join(os.path.dirname(out), "ovrad", "{object}.exr")
-        if args.in_place and not args.image_path:
-            template = "//ovrad/{object}.exr"
-        select(with_uv)
-        operator(
-            bpy.ops.ovrad.bake_image,
-            uv_map=args.uv,
-            size=args.size,
-            margin=args.margin,
-            quantity=args.quantity.upper(),
-            filepath=template,
+        return [], []
+    with_uv = [o for o in receivers if len(o.data.uv_layers)]
+    skipped = [o.name for o in receivers if o not in with_uv]
+    if not with_uv:
+        raise BatchError(
+            "no receiver has a UV map to bake an image through: unwrap them or use --target vertex"
         )
-        images = [bpy.path.abspath(bpy.data.images[o.name + "_ovrad"].filepath_raw) for o in with_uv]
-    seconds["bake"] = time.perf_counter() - t
+    for name in skipped:
+        print(f"ovrad: '{name}' has no UV map: not baked to an image", flush=True)
+    template = args.image_path or os.path.join(os.path.dirname(out), "ovrad", "{object}.exr")
+    if args.in_place and not args.image_path:
+        template = "//ovrad/{object}.exr"
+    select(with_uv)
+    operator(
+        bpy.ops.ovrad.bake_image,
+        uv_map=args.uv,
+        size=args.size,
+        margin=args.margin,
+        quantity=args.quantity.upper(),
+        filepath=template,
+    )
+    images = [bpy.path.abspath(bpy.data.images[o.name + names.IMAGE_SUFFIX].filepath_raw) for o in with_uv]
+    return images, skipped
 
-    t = time.perf_counter()
+
+def save(args, out: str) -> None:
     if args.in_place:
         bpy.ops.wm.save_mainfile(filepath=out)
     else:
         bpy.ops.wm.save_as_mainfile(filepath=out, copy=True)
-    seconds["save"] = time.perf_counter() - t
+
+
+def make_report(args, module, props, paths, receivers, atlases, stats, images, skipped) -> dict:
+    """The JSON report (without its seconds)."""
+    src, out = paths
     keys = ("rays", "unshot_fraction", "shots", "converged")
-    report = dict(input=src, output=out, ovrad=getattr(module, "__name__", "ovrad"))
+    report = dict(input=src, output=out, ovrad=module.__name__)
     report |= dict(receivers=[o.name for o in receivers], patches=sum(len(o.data.vertices) for o in atlases))
     report |= {k: stats.get(k) for k in keys} | dict(solver=props.solve_rule, beta=props.beta)
     report |= dict(overlap=round(props.overlap, 6), tolerance=float(f"{props.solve_tolerance:.6g}"))
     report |= dict(target=args.target, quantity=args.quantity, images=images, not_baked=skipped)
     report["attribute"] = args.attribute if args.target == "vertex" else None
-    if args.picture:
+    return report
+
+
+class Stages:
+    """Seconds per named stage of a run."""
+
+    def __init__(self):
+        self.start = time.perf_counter()
+        self.seconds: dict[str, float] = {}
+
+    def run(self, name: str, fn, *args):
         t = time.perf_counter()
-        render_picture(scene, receivers, atlases, args)
-        seconds["picture"] = time.perf_counter() - t
-    seconds["total"] = time.perf_counter() - start
-    report["seconds"] = {k: round(v, 3) for k, v in seconds.items()}
+        result = fn(*args)
+        self.seconds[name] = time.perf_counter() - t
+        return result
+
+    def rounded(self) -> dict[str, float]:
+        seconds = self.seconds | {"total": time.perf_counter() - self.start}
+        return {k: round(v, 3) for k, v in seconds.items()}
+
+
+def run(args) -> dict:
+    stages = Stages()
+    src, out = open_input(args)
+    module = enable_ovrad()
+    if module is None:
+        raise BatchError("ovrad's operators are registered but its module was not found")
+    engine = module.ovrad_addon
+    try:
+        scene = bpy.context.scene
+        if args.picture and scene.camera is None:
+            raise BatchError("the scene has no camera to render --picture from")
+        apply_settings(scene.ovrad, args)
+        receivers = pick_receivers(scene, args.receivers, engine.names)
+        atlases = stages.run("generate", generate, scene, receivers, engine.names)
+        stats = stages.run("solve", run_solve, module)
+        images, skipped = stages.run("bake", bake, args, receivers, out, engine.names)
+        stages.run("save", save, args, out)
+        report = make_report(
+            args, module, scene.ovrad, (src, out), receivers, atlases, stats, images, skipped
+        )
+        if args.picture:
+            stages.run("picture", render_picture, scene, receivers, atlases, args, engine.names)
+    except engine.errors.OvradError as e:  # a user error the engine found: one line, like ours
+        raise BatchError(str(e).splitlines()[0]) from None
+    report["seconds"] = stages.rounded()
     if args.report:
         with open(args.report, "w", encoding="utf-8") as fh:
             json.dump(report, fh, indent=2)
@@ -426,9 +436,8 @@ def main(argv: list[str] | None = None) -> int:
     except BatchError as e:
         print(f"{PROG}: error: {e}", file=sys.stderr, flush=True)
         return 1
-    except Exception as e:  # the engine's OvradError and anything unforeseen: still one line
-        kind = "" if type(e).__name__ == "OvradError" else f"{type(e).__name__}: "
-        print(f"{PROG}: error: {kind}{e}".splitlines()[0], file=sys.stderr, flush=True)
+    except Exception as e:  # anything unforeseen: still one line, naming its type
+        print(f"{PROG}: error: {type(e).__name__}: {e}".splitlines()[0], file=sys.stderr, flush=True)
         return 1
     s = report["seconds"]
     print(

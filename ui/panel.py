@@ -1,5 +1,6 @@
-"""The "ovrad" sidebar panel in the 3D view: atlas settings, Generate Atlas, display, per-object overrides,
-Solve (with live progress and Cancel), Bake and Preview."""
+"""The "ovrad" sidebar panel in the 3D view, laid out like Blender's render panels: a main panel
+with sub-panels for Atlas (with the active object's overrides), Solve (live progress and Cancel
+while solving), Bake (and Preview), Display, and the expert settings under a collapsed Advanced."""
 
 from __future__ import annotations
 
@@ -9,34 +10,54 @@ from ..operators import attributes, preview, solve
 from ..ovrad_addon import names
 
 
-class OVRAD_PT_main(bpy.types.Panel):
-    bl_idname = "OVRAD_PT_main"
-    bl_label = "Overlapping Radiosity"
+class _Sidebar:
     bl_space_type = "VIEW_3D"
     bl_region_type = "UI"
     bl_category = "ovrad"
 
+
+def _split(layout):
+    layout.use_property_split = True
+    layout.use_property_decorate = False
+    return layout
+
+
+class OVRAD_PT_main(_Sidebar, bpy.types.Panel):
+    bl_idname = "OVRAD_PT_main"
+    bl_label = "Overlapping Radiosity"
+
     def draw(self, context):
         layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
-        props = context.scene.ovrad
+        atlases = [o for o in context.scene.objects if attributes.is_atlas(o)]
+        if not atlases:
+            layout.label(text="Select meshes and generate an atlas", icon="INFO")
+            return
+        total = sum(attributes.patch_count(o) for o in atlases)
+        layout.label(text=f"{total:,} patches in {len(atlases)} atlas object(s)", icon="INFO")
+        for o in context.selected_objects:
+            if attributes.is_atlas(o):
+                beta = o.get(names.PROP_BETA, "?")
+                layout.label(text=f"{o.name}: {attributes.patch_count(o):,} patches, beta {beta}")
 
-        col = layout.column(heading="Atlas")
+
+class _SubPanel(_Sidebar):
+    bl_parent_id = "OVRAD_PT_main"
+
+
+class OVRAD_PT_atlas(_SubPanel, bpy.types.Panel):
+    bl_idname = "OVRAD_PT_atlas"
+    bl_label = "Atlas"
+
+    def draw(self, context):
+        layout = _split(self.layout)
+        props = context.scene.ovrad
+        col = layout.column()
         col.prop(props, "size_mode", text="Patch Size")
-        if props.size_mode == "SIZE":
-            col.prop(props, "patch_size")
-        else:
-            col.prop(props, "patch_count")
+        col.prop(props, "patch_size" if props.size_mode == "SIZE" else "patch_count")
         col.prop(props, "overlap")
         col.prop(props, "beta")
         col.prop(props, "shapes")
-        col.prop(props, "max_patches")
         layout.operator("ovrad.generate_atlas", icon="MESH_CIRCLE")
-
-        layout.separator()
-        layout.prop(props, "display_quantity")
-
         obj = context.active_object
         if obj is not None and obj.type == "MESH" and not attributes.is_atlas(obj):
             box = layout.box()
@@ -44,34 +65,54 @@ class OVRAD_PT_main(bpy.types.Panel):
             box.prop(obj.ovrad, "density")
             box.prop(obj.ovrad, "sides")
 
-        atlases = [o for o in context.scene.objects if attributes.is_atlas(o)]
-        if atlases:
-            box = layout.box()
-            total = sum(attributes.patch_count(o) for o in atlases)
-            box.label(text=f"{total:,} patches in {len(atlases)} atlas object(s)", icon="INFO")
-            for o in context.selected_objects:
-                if attributes.is_atlas(o):
-                    beta = o.get(names.PROP_BETA, "?")
-                    box.label(text=f"{o.name}: {attributes.patch_count(o):,} patches, beta {beta}")
 
-        layout.separator()
-        draw_solve(layout, props)
-        layout.separator()
-        draw_bake(layout, props)
+class OVRAD_PT_solve(_SubPanel, bpy.types.Panel):
+    bl_idname = "OVRAD_PT_solve"
+    bl_label = "Solve"
+
+    def draw(self, context):
+        draw_solve(self.layout)
 
 
-def draw_solve(layout, props) -> None:
-    """Solver settings and Solve; while a solve runs, its progress and Cancel instead."""
-    col = layout.column(heading="Solve")
-    col.prop(props, "solve_tolerance")
-    col.prop(props, "solve_rule")
-    col.prop(props, "rays_per_point")
-    col.prop(props, "min_rays")
+class OVRAD_PT_bake(_SubPanel, bpy.types.Panel):
+    bl_idname = "OVRAD_PT_bake"
+    bl_label = "Bake"
+
+    def draw(self, context):
+        draw_bake(_split(self.layout), context.scene.ovrad)
+
+
+class OVRAD_PT_display(_SubPanel, bpy.types.Panel):
+    bl_idname = "OVRAD_PT_display"
+    bl_label = "Display"
+
+    def draw(self, context):
+        _split(self.layout).prop(context.scene.ovrad, "display_quantity")
+
+
+class OVRAD_PT_advanced(_SubPanel, bpy.types.Panel):
+    bl_idname = "OVRAD_PT_advanced"
+    bl_label = "Advanced"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        layout = _split(self.layout)
+        props = context.scene.ovrad
+        col = layout.column(heading="Solve")
+        col.prop(props, "solve_tolerance")
+        col.prop(props, "solve_rule")
+        col.prop(props, "rays_per_point")
+        col.prop(props, "min_rays")
+        layout.column(heading="Atlas").prop(props, "max_patches")
+
+
+def draw_solve(layout) -> None:
+    """Solve; while a solve runs, its progress and Cancel instead."""
     job = solve.running()
     if job is None:
         layout.operator("ovrad.solve", icon="LIGHT_SUN")
         return
-    p = job.progress()
+    p = job.status()
     box = layout.box()
     box.label(text=f"{'Cancelling' if p.cancelling else 'Solving'}: {100 * p.fraction:.0f}%", icon="TIME")
     box.label(text=p.stage)
@@ -84,7 +125,7 @@ def draw_solve(layout, props) -> None:
 
 def draw_bake(layout, props) -> None:
     """Bake settings, the Bake button of the chosen target, and the Preview toggle."""
-    col = layout.column(heading="Bake")
+    col = layout.column()
     col.prop(props, "bake_target")
     col.prop(props, "bake_quantity")
     col.prop(props, "bake_direct")
@@ -106,4 +147,5 @@ def draw_bake(layout, props) -> None:
         op.filepath, op.quantity = props.bake_image_path, props.bake_quantity
 
 
-classes = (OVRAD_PT_main,)
+# Parents before their sub-panels; sub-panels show in this order.
+classes = (OVRAD_PT_main, OVRAD_PT_atlas, OVRAD_PT_solve, OVRAD_PT_bake, OVRAD_PT_display, OVRAD_PT_advanced)

@@ -91,7 +91,7 @@ def test_exr_read_back_equals_the_baked_image(scene, tmp_path):
 def floor_points(ovrad, points):
     """The engine's own radiance at floor points (x, y, 0), from the stored solution (direct light
     computed at the points, as the bake does by default)."""
-    sol = ovrad.operators.solve.load_solution(bpy.context)
+    sol = ovrad.operators.solution.load_solution(bpy.context)
     s = sol.problem.surfaces
     k = [o.name for o in sol.receivers].index("Floor")
     tri = np.full(len(points), -1)

@@ -29,6 +29,7 @@ class Layout:
         module, name = idname.split(".")
         assert hasattr(getattr(bpy.ops, module), name), idname
         self.shown.append(("operator", idname))
+        return type("Props", (), {})()
 
     def label(self, text="", **_):
         self.shown.append(("label", text))
@@ -38,10 +39,40 @@ class Layout:
 
 
 def draw_panel(ovrad):
+    """What the main panel and all its sub-panels show (collapsed ones included)."""
     shown = []
-    panel = type("P", (), {"layout": Layout(shown)})()
-    ovrad.ui.panel.OVRAD_PT_main.draw(panel, bpy.context)
+    for cls in ovrad.ui.panel.classes:
+        panel = type("P", (), {"layout": Layout(shown)})()
+        cls.draw(panel, bpy.context)
     return shown
+
+
+def test_every_setting_is_reachable_from_the_panel(ovrad, fresh_scene):
+    bpy.ops.mesh.primitive_cube_add()
+    props = fresh_scene.ovrad
+    shown = set()
+    for size_mode in ("COUNT", "SIZE"):
+        for target in ("VERTEX", "IMAGE"):
+            props.size_mode, props.bake_target = size_mode, target
+            shown |= {name for kind, name in draw_panel(ovrad) if kind == "prop"}
+    everything = {p.identifier for p in props.bl_rna.properties}
+    everything |= {p.identifier for p in bpy.context.active_object.ovrad.bl_rna.properties}
+    everything -= {"rna_type", "name"}
+    assert everything <= shown, sorted(everything - shown)
+
+
+def test_sub_panels_sit_under_the_main_panel_with_the_expert_settings_collapsed(ovrad):
+    panel = ovrad.ui.panel
+    subs = [cls for cls in panel.classes if cls is not panel.OVRAD_PT_main]
+    assert [cls.bl_label for cls in subs] == ["Atlas", "Solve", "Bake", "Display", "Advanced"]
+    assert all(cls.bl_parent_id == "OVRAD_PT_main" for cls in subs)
+    assert panel.OVRAD_PT_advanced.bl_options == {"DEFAULT_CLOSED"}
+    assert all(hasattr(bpy.types, cls.bl_idname) for cls in panel.classes)
+    shown = []
+    advanced = type("P", (), {"layout": Layout(shown)})()
+    panel.OVRAD_PT_advanced.draw(advanced, bpy.context)
+    expert = ("solve_tolerance", "solve_rule", "rays_per_point", "min_rays", "max_patches")
+    assert [name for kind, name in shown if kind == "prop"] == list(expert)
 
 
 def test_panel_shows_settings_generate_and_the_active_objects_overrides(ovrad, fresh_scene):

@@ -53,9 +53,10 @@ def state():
     return out
 
 
-def slow_engine(solve, monkeypatch, seconds=0.01):
+def slow_engine(ovrad, monkeypatch, seconds=0.01):
     """Each solver step takes a little longer, so a solve lasts long enough to be watched."""
-    real = solve.solve
+    job_module = ovrad.operators.solve_job
+    real = job_module.solve
 
     def slow(*args, progress=None, **kwargs):
         def step(*report):
@@ -64,8 +65,8 @@ def slow_engine(solve, monkeypatch, seconds=0.01):
 
         return real(*args, progress=None if progress is None else step, **kwargs)
 
-    monkeypatch.setattr(solve, "solve", slow)
-    monkeypatch.setattr(solve, "LIVE_INTERVAL", 0.0)  # write every published state
+    monkeypatch.setattr(job_module, "solve", slow)
+    monkeypatch.setattr(job_module, "LIVE_INTERVAL", 0.0)  # write every published state
 
 
 @pytest.fixture
@@ -107,10 +108,10 @@ def test_cancelling_a_synchronous_solve_leaves_the_scene_as_it_was(furnace, ovra
     calls = []
 
     def cancel_at_first_line(job):
-        calls.append(job.progress().stage)
+        calls.append(job.status().stage)
         assert bpy.ops.ovrad.cancel_solve() == {"FINISHED"}  # what the panel's Cancel button runs
 
-    monkeypatch.setattr(solve, "print_progress", cancel_at_first_line)
+    monkeypatch.setattr(ovrad.operators.solve_job, "ProgressPrinter", lambda: cancel_at_first_line)
     assert bpy.ops.ovrad.solve() == {"CANCELLED"}
     assert calls and state() == before and solve.running() is None
     # Cancelled while computing form factors, with another ray count (no cached problem to reuse).
@@ -122,14 +123,14 @@ def test_cancelling_a_synchronous_solve_leaves_the_scene_as_it_was(furnace, ovra
 
 def test_cancelled_live_solve_restores_what_its_live_updates_wrote(furnace, ovrad, monkeypatch):
     """The modal operator's path, driven as its timer would: worker thread, live writes, cancel."""
-    solve = ovrad.operators.solve
-    slow_engine(solve, monkeypatch)
+    solve, result = ovrad.operators.solve, ovrad.operators.solve_result
+    slow_engine(ovrad, monkeypatch)
     scene = bpy.context.scene
     scene.ovrad.display_quantity = "BETA"
     before = state()
-    inputs = solve.read_inputs(bpy.context)
-    job = solve.SolveJob(inputs, live=True)
-    saved = solve.save_state(scene, inputs.atlas_names)
+    inputs = ovrad.operators.solve_inputs.read_inputs(bpy.context)
+    job = solve.make_job(inputs, live=True)
+    saved = result.save_state(scene, inputs.atlas_names)
     worker = threading.Thread(target=job.run)
     worker.start()
     written = 0
@@ -137,7 +138,7 @@ def test_cancelled_live_solve_restores_what_its_live_updates_wrote(furnace, ovra
     while written == 0 and time.time() < deadline:
         version, radiosity = job.latest()
         if version:
-            solve.write_radiosity(scene, inputs, radiosity)  # a live update, as modal() makes it
+            result.write_radiosity(scene, inputs, radiosity)  # a live update, as modal() makes it
             written = version
         time.sleep(0.01)
     job.cancel()
@@ -147,28 +148,29 @@ def test_cancelled_live_solve_restores_what_its_live_updates_wrote(furnace, ovra
     assert (
         "ovrad_radiosity" in atlas_of("Box").data.attributes and scene.ovrad.display_quantity == "RADIOSITY"
     )
-    status, message = solve.finish(scene, job, saved)
+    status, message = result.finish(scene, job, saved)
     assert status == "CANCELLED" and "as it was" in message
     assert state() == before
 
 
 def test_live_solve_to_the_end_writes_the_same_answer(furnace, ovrad):
-    solve = ovrad.operators.solve
-    inputs = solve.read_inputs(bpy.context)
-    job = solve.SolveJob(inputs, live=True)
+    solve, result = ovrad.operators.solve, ovrad.operators.solve_result
+    inputs = ovrad.operators.solve_inputs.read_inputs(bpy.context)
+    job = solve.make_job(inputs, live=True)
     worker = threading.Thread(target=job.run)
     worker.start()
     worker.join()
-    status, _ = solve.finish(bpy.context.scene, job, solve.save_state(bpy.context.scene, inputs.atlas_names))
+    status, _ = result.finish(
+        bpy.context.scene, job, result.save_state(bpy.context.scene, inputs.atlas_names)
+    )
     assert status == "FINISHED" and job.state.converged
     np.testing.assert_allclose(colors(atlas_of("Box").data, "ovrad_radiosity")[:, :3], 2.0, rtol=0.02)
-    p = job.progress()
+    p = job.status()
     assert p.fraction == pytest.approx(1.0) and p.unshot < 1e-4 and "unshot" in p.text()
 
 
 def test_changing_lamps_or_emission_only_reuses_the_form_factors(furnace, ovrad, capsys):
-    solve = ovrad.operators.solve
-    solve.clear_cache()
+    ovrad.operators.solution.clear_cache()
     assert bpy.ops.ovrad.solve() == {"FINISHED"}
     assert "reusing the form factors" not in capsys.readouterr().out
     first = colors(atlas_of("Box").data, "ovrad_radiosity")[:, :3].copy()
@@ -283,9 +285,11 @@ class Layout:
 
 
 def draw(ovrad):
+    """What the main panel and all its sub-panels show."""
     shown = []
-    panel = type("P", (), {"layout": Layout(shown)})()
-    ovrad.ui.panel.OVRAD_PT_main.draw(panel, bpy.context)
+    for cls in ovrad.ui.panel.classes:
+        panel = type("P", (), {"layout": Layout(shown)})()
+        cls.draw(panel, bpy.context)
     return shown
 
 
@@ -299,7 +303,7 @@ def test_panel_shows_solve_bake_and_while_solving_progress_and_cancel(furnace, o
     bpy.context.scene.ovrad.bake_target = "IMAGE"
     assert ("operator", "ovrad.bake_image") in draw(ovrad)
     solve = ovrad.operators.solve
-    job = solve.SolveJob(solve.read_inputs(bpy.context), live=True)
+    job = solve.make_job(ovrad.operators.solve_inputs.read_inputs(bpy.context), live=True)
     job._update("solving", 0.5, 3e-3, 1000)
     monkeypatch.setattr(solve, "_RUNNING", job)
     shown = draw(ovrad)
@@ -397,7 +401,7 @@ def run_modal(op, context, esc_after_writes=None):
 
 def test_modal_solve_updates_live_and_finishes_with_the_answer(furnace, ovrad, monkeypatch):
     solve = ovrad.operators.solve
-    slow_engine(solve, monkeypatch)
+    slow_engine(ovrad, monkeypatch)
     op, context, reports = modal_driver(ovrad)
     assert op._start(context) == {"RUNNING_MODAL"} and solve.running() is op._job
     result, writes = run_modal(op, context)
@@ -413,7 +417,7 @@ def test_modal_solve_updates_live_and_finishes_with_the_answer(furnace, ovrad, m
 
 def test_modal_solve_cancelled_with_esc_restores_the_scene(furnace, ovrad, monkeypatch):
     solve = ovrad.operators.solve
-    slow_engine(solve, monkeypatch)
+    slow_engine(ovrad, monkeypatch)
     before = state()
     op, context, reports = modal_driver(ovrad)
     op._start(context)
@@ -427,17 +431,18 @@ def test_modal_solve_cancelled_with_esc_restores_the_scene(furnace, ovrad, monke
 def test_a_diverging_solve_stops_with_an_error_and_changes_nothing(furnace, ovrad, monkeypatch):
     """A solver that produces NaN (seen with the paper's rule on atlases with empty supports) must
     not loop forever: the progress callback stops it and the operator reports it."""
-    solve = ovrad.operators.solve
-    real = solve.solve
+    solve, job_module = ovrad.operators.solve, ovrad.operators.solve_job
+    real = job_module.solve
+    report = ovrad.ovrad_addon.solver.SolveProgress
 
     def nan_solve(problem, lamps, settings, progress=None, state=None):
         st = real(problem, lamps, settings, progress=lambda *a: False, state=state)
         st.radiosity = np.full_like(st.radiosity, np.nan)
         if progress is not None:
-            assert progress(0.5, float("nan"), 0.1, 10) is False  # the guard asks to stop
+            assert progress(report(0.5, float("nan"), 0.1, 10, st)) is False  # the guard asks to stop
         return st
 
-    monkeypatch.setattr(solve, "solve", nan_solve)
+    monkeypatch.setattr(job_module, "solve", nan_solve)
     before = state()
     with pytest.raises(RuntimeError, match="the solve diverged .* use the exact solver"):
         bpy.ops.ovrad.solve()

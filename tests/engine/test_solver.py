@@ -115,8 +115,8 @@ def test_a_cancelled_solve_can_be_continued_to_the_same_answer():
     s, (atlas, index, C, T, E) = lit_cube(1.3, "smooth")
     calls = []
 
-    def cancel_after_two(fraction, unshot, elapsed, rays):
-        calls.append((fraction, unshot))
+    def cancel_after_two(p):
+        calls.append((p.fraction, p.unshot))
         return len(calls) < 2
 
     partial = solve_progressive(C, T, E, tolerance=1e-6, batch=8, progress=cancel_after_two)

@@ -1,0 +1,109 @@
+"""The one reader of evaluated meshes: world vertices, loop triangles and their loops, polygons,
+materials and UVs, as plain arrays (the scene reader and both bakes read meshes through it)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..ovrad_addon.errors import OvradError
+
+
+@dataclass(frozen=True)
+class MeshData:
+    """One mesh in world space, per loop triangle (Blender's order).
+
+    vertices (V, 3) float64 world positions; triangles (T, 3) int64 vertex indices, winding
+    flipped under a mirroring matrix so normals face as Blender shows them; loops (T, 3) int64
+    the loop of each triangle corner (same corner order as triangles); polygons (T,) and
+    material_index (T,) int64; loop_vertices (L,) int64 the vertex of each loop; uv (T, 3, 2)
+    float64 of the chosen UV map or None; materials: the material of each slot (object slots
+    first, else the mesh's), possibly empty.
+    """
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+    loops: np.ndarray
+    polygons: np.ndarray
+    material_index: np.ndarray
+    loop_vertices: np.ndarray
+    n_polygons: int
+    uv: np.ndarray | None = None
+    materials: tuple = ()
+
+    @property
+    def corners(self) -> np.ndarray:
+        """(T, 3, 3) world position of each triangle corner."""
+        return self.vertices[self.triangles]
+
+
+def _get(collection, key: str, per: int, dtype) -> np.ndarray:
+    out = np.empty(len(collection) * per, dtype)
+    collection.foreach_get(key, out)
+    return out.reshape(-1, per) if per > 1 else out
+
+
+def loop_vertices(mesh) -> np.ndarray:
+    """(L,) int64 vertex index of each loop of a mesh (evaluated or not)."""
+    return _get(mesh.loops, "vertex_index", 1, np.int32).astype(np.int64)
+
+
+def _uv_layer(mesh, uv_map: str, owner: str):
+    """The UV layer named uv_map, or the active render one when uv_map is empty."""
+    layers = mesh.uv_layers
+    if len(layers) == 0:
+        raise OvradError(f"'{owner}' has no UV map: unwrap it (UV > Unwrap) before baking to an image")
+    if not uv_map:
+        return next((lay for lay in layers if lay.active_render), layers.active or layers[0])
+    layer = layers.get(uv_map)
+    if layer is None:
+        have = ", ".join(lay.name for lay in layers)
+        raise OvradError(f"'{owner}' has no UV map named '{uv_map}' (it has: {have})")
+    return layer
+
+
+def read_mesh(mesh, matrix_world, uv_map: str | None = None, owner: str = "", materials=None) -> MeshData:
+    """A mesh (already evaluated) placed by matrix_world (4 x 4) into MeshData.
+
+    uv_map: None reads no UVs, "" the active render UV map, else that map (OvradError if the
+    mesh has none of that name, naming `owner`). materials default to the mesh's own.
+    """
+    owner = owner or mesh.name
+    co = _get(mesh.vertices, "co", 3, np.float32)
+    tris = mesh.loop_triangles
+    triangles = _get(tris, "vertices", 3, np.int32).astype(np.int64)
+    loops = _get(tris, "loops", 3, np.int32).astype(np.int64)
+    uv = None
+    if uv_map is not None:
+        per_loop = _get(_uv_layer(mesh, uv_map, owner).data, "uv", 2, np.float32)
+        uv = per_loop[loops].astype(np.float64)
+    m = np.array(matrix_world, dtype=np.float64)
+    if np.linalg.det(m[:3, :3]) < 0.0:
+        # A mirroring matrix turns faces inside out; flipping the winding keeps normals as Blender shows them.
+        flip = [0, 2, 1]
+        triangles, loops = triangles[:, flip], loops[:, flip]
+        uv = None if uv is None else uv[:, flip]
+    return MeshData(
+        vertices=co.astype(np.float64) @ m[:3, :3].T + m[:3, 3],
+        triangles=triangles,
+        loops=loops,
+        polygons=_get(tris, "polygon_index", 1, np.int32).astype(np.int64),
+        material_index=_get(tris, "material_index", 1, np.int32).astype(np.int64),
+        loop_vertices=loop_vertices(mesh),
+        n_polygons=len(mesh.polygons),
+        uv=uv,
+        materials=tuple(mesh.materials) if materials is None else tuple(materials),
+    )
+
+
+def read_object(obj, depsgraph, uv_map: str | None = None) -> MeshData:
+    """The evaluated mesh of a mesh object (modifiers applied) in world space; its materials are
+    the object's material slots (else the mesh's)."""
+    ev = obj.evaluated_get(depsgraph)
+    mesh = ev.to_mesh()
+    try:
+        slots = [s.material for s in ev.material_slots] or list(mesh.materials)
+        return read_mesh(mesh, ev.matrix_world, uv_map, owner=obj.name, materials=slots)
+    finally:
+        ev.to_mesh_clear()

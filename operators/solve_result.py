@@ -1,0 +1,137 @@
+"""Writing a solve's result into the file: radiosity and direct light on the atlas objects, or the
+scene put back as it was (save_state / restore_state) after a cancelled or failed solve."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import bpy
+import numpy as np
+
+from ..ovrad_addon import names
+from . import attributes, display
+from .solution import remember
+from .solve_inputs import SolveInputs, light_key
+from .solve_job import SolveJob, unshot_fraction
+
+
+@dataclass
+class SavedState:
+    """What a solve changes, as it was before: per atlas object its radiosity attribute (or None)
+    and its display quantity, and the scene's display setting."""
+
+    quantity: str
+    objects: dict
+
+
+def save_state(scene, atlas_names: list[str]) -> SavedState:
+    """What a solve of these atlas objects may change, as it is now."""
+    saved = {}
+    for name in atlas_names:
+        obj = bpy.data.objects[name]
+        mesh = obj.data
+        old = {
+            attr: attributes.read_point_attribute(mesh, attr) if attr in mesh.attributes else None
+            for attr in (names.RADIOSITY, names.DIRECT)
+        }
+        mod = obj.modifiers.get(names.DISPLAY_MODIFIER)
+        q = None
+        if mod is not None and mod.node_group is not None:
+            q = mod.get(display.input_identifier(mod.node_group, "Quantity"))
+        saved[name] = (old, None if q is None else int(q), obj.get(names.PROP_LIGHT_KEY))
+    return SavedState(scene.ovrad.display_quantity, saved)
+
+
+def restore_state(scene, saved: SavedState) -> None:
+    """Put back what save_state() saw (a cancelled or failed solve leaves the scene as before)."""
+    if scene.ovrad.display_quantity != saved.quantity:
+        scene.ovrad.display_quantity = saved.quantity
+    for name, (old, quantity, key) in saved.objects.items():
+        obj = bpy.data.objects.get(name)
+        if obj is None or not attributes.is_atlas(obj):
+            continue
+        mesh = obj.data
+        for attr_name, values in old.items():
+            if values is None:
+                attributes.remove_attribute(mesh, attr_name)
+            elif len(values) == len(mesh.vertices):
+                attributes.write_point_attribute(mesh, attr_name, values, "FLOAT_COLOR")
+        if key is None:
+            obj.pop(names.PROP_LIGHT_KEY, None)
+        elif obj.get(names.PROP_LIGHT_KEY) != key:
+            obj[names.PROP_LIGHT_KEY] = key
+        if quantity is not None:
+            display.set_input(obj, "Quantity", quantity)
+        mesh.update()
+
+
+def write_radiosity(
+    scene, inputs: SolveInputs, radiosity: np.ndarray, first_shot: np.ndarray | None = None
+) -> list[str]:
+    """Radiance B/pi (FLOAT_COLOR, alpha 1) on each atlas object, shown by the display, and the
+    first shot's share of it (direct light, for bakes) with the key of the light it came from
+    (first_shot None: an intermediate write, which removes both); returns the names of atlas
+    objects that changed under the solve (skipped)."""
+    skipped = []
+    radiance = np.asarray(radiosity, np.float64) / np.pi
+    direct = radiance if first_shot is None else np.asarray(first_shot, np.float64) / np.pi
+    key = light_key(inputs.surfaces, inputs.lamps)
+    start = 0
+    for name, count in zip(inputs.atlas_names, inputs.counts, strict=True):
+        part = radiance[start : start + count]
+        part_direct = direct[start : start + count]
+        start += count
+        obj = bpy.data.objects.get(name)
+        if obj is None or not attributes.is_atlas(obj) or attributes.patch_count(obj) != count:
+            skipped.append(name)
+            continue
+        attributes.write_point_attribute(obj.data, names.RADIOSITY, part, "FLOAT_COLOR")
+        if first_shot is None:
+            # a live, intermediate write: no split to bake from until the solve has finished
+            # (a bake would otherwise add direct light to a radiosity that holds it already)
+            attributes.remove_attribute(obj.data, names.DIRECT)
+            obj.pop(names.PROP_LIGHT_KEY, None)
+        else:
+            attributes.write_point_attribute(obj.data, names.DIRECT, part_direct, "FLOAT_COLOR")
+            obj[names.PROP_LIGHT_KEY] = key
+        obj.data.update()
+        display.set_quantity(obj, "RADIOSITY")
+    if scene.ovrad.display_quantity != "RADIOSITY":
+        scene.ovrad.display_quantity = "RADIOSITY"
+    return skipped
+
+
+def summary(job: SolveJob) -> str:
+    """The one-line report of a finished solve."""
+    st, inp = job.state, job.inputs
+    reuse = "form factors reused" if job.reused else f"{job.problem.rays:,} transport rays"
+    unshot = unshot_fraction(st)
+    return (
+        f"ovrad: solved {len(inp.atlas):,} patches, {len(inp.lamps)} lamp(s), {reuse}, "
+        f"{st.shots:,} shots, unshot {unshot:.1e}, {job.status().elapsed:.2f} s"
+    )
+
+
+def finish(scene, job: SolveJob, saved: SavedState | None) -> tuple[str, str]:
+    """Write the result of a finished job, or restore the scene; returns (status, message), status
+    one of FINISHED, CANCELLED, ERROR."""
+    if job.problem is not None:  # also after a cancelled solve: the next one starts from it
+        remember(job.inputs, job.problem)
+    if job.error is not None and not (job.cancelled and str(job.error) == "cancelled"):
+        if saved is not None:
+            restore_state(scene, saved)
+        if job.details:
+            print(job.details)
+            return "ERROR", f"ovrad: internal error ({job.error!r}); see the console"
+        return "ERROR", str(job.error)
+    if job.cancelled or job.state is None:
+        if saved is not None:
+            restore_state(scene, saved)
+        return "CANCELLED", "ovrad: solve cancelled; the scene is as it was"
+    skipped = write_radiosity(scene, job.inputs, job.state.radiosity, job.state.first_shot)
+    message = summary(job)
+    if skipped:
+        message += f" (changed during the solve, not written: {', '.join(skipped)})"
+    if not job.state.converged:
+        message += " (not converged)"
+    return "FINISHED", message
