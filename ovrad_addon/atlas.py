@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
+from dataclasses import fields as dataclass_fields
 from functools import cached_property
 
 import numpy as np
@@ -10,7 +11,7 @@ from scipy.spatial import cKDTree
 
 from . import names
 from .errors import OvradError
-from .placement import Placed, place_curved, place_planar
+from .placement import Placed, place_curved, place_planar, place_planar_small
 from .progress import StageCallback, report_stage
 from .rays import EmbreeRays, NumpyRays, make_rays
 from .settings import AtlasSettings
@@ -27,6 +28,10 @@ class Atlas:
     tolerated distance from the patch plane, min_cos (n,) least normal agreement,
     support_area (n,) area A_h of D_h on the surface, effective_area (n,) c_hh,
     overlap_count (n,) other patches overlapping, random (n,) stable value in [0, 1).
+    triangle (n,) int64 and side (n,) int8 (+1 front, -1 back) say which sheet the patch lies on
+    without searching: the sheet is (chart of that triangle, side); triangle is counted among the
+    source object's own triangles, so it stays valid when other objects change. None (or -1
+    entries) for atlases made before they existed: their sheets are found by locating the patch.
     """
 
     centers: np.ndarray
@@ -43,6 +48,8 @@ class Atlas:
     overlap_count: np.ndarray
     random: np.ndarray
     beta: str = "smooth"
+    triangle: np.ndarray | None = None
+    side: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.centers)
@@ -79,7 +86,13 @@ class Atlas:
 
     def point_attributes(self) -> dict[str, tuple[np.ndarray, str]]:
         """Blender POINT attributes: name -> (array, attribute type)."""
-        return {
+        located = {}
+        if self.triangle is not None and self.side is not None:
+            located = {
+                names.TRIANGLE: (self.triangle.astype(np.int32), "INT"),
+                names.SIDE: (self.side.astype(np.int32), "INT"),
+            }
+        return located | {
             names.NORMAL: (self.normals, "FLOAT_VECTOR"),
             names.RADIUS: (self.radii, "FLOAT"),
             names.SHAPE: (self.shapes.astype(np.int32), "INT"),
@@ -106,6 +119,18 @@ class Atlas:
         kw = {}
         for f in fields(Atlas):
             vals = [getattr(a, f.name) for a in atlases]
+            if f.name in ("triangle", "side"):
+                # an atlas without them (made before they existed) is located by search: -1
+                vals = (
+                    None
+                    if all(v is None for v in vals)
+                    else [
+                        np.full(len(a), -1, np.int64) if v is None else v
+                        for a, v in zip(atlases, vals, strict=True)
+                    ]
+                )
+                kw[f.name] = None if vals is None else np.concatenate(vals)
+                continue
             kw[f.name] = np.concatenate(vals) if isinstance(vals[0], np.ndarray) else vals[0]
         return Atlas(**kw)
 
@@ -136,6 +161,8 @@ class Atlas:
             overlap_count=get(names.OVERLAP, dtype=np.int64),
             random=get(names.RANDOM),
             beta=beta,
+            triangle=get(names.TRIANGLE, dtype=np.int64) if names.TRIANGLE in attributes else None,
+            side=get(names.SIDE, dtype=np.int8) if names.SIDE in attributes else None,
         )
 
 
@@ -190,33 +217,54 @@ def _chart_planarity(surfaces: Surfaces, charts: Charts) -> tuple[np.ndarray, np
 
 
 def _back_side_sees_something(surfaces: Surfaces, charts: Charts, rays, chart_ids: np.ndarray) -> np.ndarray:
-    """For open charts: does any probe ray from the back side hit scene geometry? (bool per chart id)."""
+    """For open charts: does any probe ray from the back side hit scene geometry? (bool per chart id).
+
+    Each chart casts the same number of rays from area-weighted random points, all charts at once.
+    """
     rng = np.random.default_rng(12345)
     extent = max(surfaces.extent, 1e-300)
     result = np.zeros(len(chart_ids), bool)
     per_chart, per_point = 48, 6
-    origins, dirs, owner = [], [], []
-    for j, c in enumerate(chart_ids):
-        tri = np.flatnonzero(charts.chart == c)
-        p = charts.areas[tri] / charts.areas[tri].sum()
-        pick = tri[rng.choice(len(tri), size=per_chart, p=p)]
-        u, v = rng.random(per_chart), rng.random(per_chart)
-        f = u + v > 1
-        u[f], v[f] = 1 - u[f], 1 - v[f]
-        cc = surfaces.corners[pick]
-        pts = cc[:, 0] + u[:, None] * (cc[:, 1] - cc[:, 0]) + v[:, None] * (cc[:, 2] - cc[:, 0])
-        n = -charts.normals[pick]
-        d = rng.normal(size=(per_chart, per_point, 3))
-        d /= np.linalg.norm(d, axis=2, keepdims=True)
-        d = np.where(np.einsum("pkj,pj->pk", d, n)[..., None] < 0, -d, d)
-        origins.append(np.repeat(pts + 1e-6 * extent * n, per_point, axis=0))
-        dirs.append(d.reshape(-1, 3))
-        owner.append(np.full(per_chart * per_point, j))
-    if not origins:
+    if len(chart_ids) == 0:
         return result
-    hit = rays.occluded(np.concatenate(origins), np.concatenate(dirs), np.inf)
-    np.logical_or.at(result, np.concatenate(owner), hit)
-    return result
+    slot = np.full(charts.count, -1, np.int64)
+    slot[chart_ids] = np.arange(len(chart_ids))
+    tri = np.flatnonzero(charts.chart >= 0)
+    tri = tri[slot[charts.chart[tri]] >= 0]
+    tri = tri[np.argsort(slot[charts.chart[tri]], kind="stable")]  # grouped by chart_ids order
+    owner_tri = slot[charts.chart[tri]]
+    cum = np.cumsum(charts.areas[tri])
+    n_per = np.bincount(owner_tri, minlength=len(chart_ids))
+    end = np.cumsum(n_per)
+    start = end - n_per
+    lo = np.where(start > 0, cum[np.maximum(start - 1, 0)], 0.0)
+    hi = cum[end - 1]
+    owner = np.repeat(np.arange(len(chart_ids)), per_chart)
+    # area-weighted pick of a triangle within each chart: inverse CDF on the running area sum
+    target = lo[owner] + rng.random(len(owner)) * (hi - lo)[owner]
+    pick = np.searchsorted(cum, target, side="right")
+    pick = tri[np.clip(pick, start[owner], end[owner] - 1)]
+    m = len(pick)
+    u, v = rng.random(m), rng.random(m)
+    f = u + v > 1
+    u[f], v[f] = 1 - u[f], 1 - v[f]
+    cc = surfaces.corners[pick]
+    pts = cc[:, 0] + u[:, None] * (cc[:, 1] - cc[:, 0]) + v[:, None] * (cc[:, 2] - cc[:, 0])
+    n = -charts.normals[pick]
+    d = rng.normal(size=(m, per_point, 3))
+    d /= np.linalg.norm(d, axis=2, keepdims=True)
+    d = np.where(np.einsum("pkj,pj->pk", d, n)[..., None] < 0, -d, d)
+    origins = np.repeat(pts + 1e-6 * extent * n, per_point, axis=0)
+    hit = rays.occluded(origins, d.reshape(-1, 3), np.inf)
+    return np.bincount(np.repeat(owner, per_point), weights=hit, minlength=len(chart_ids)) > 0
+
+
+def _chart_objects(surfaces: Surfaces, charts: Charts) -> np.ndarray:
+    """(n_charts,) object index of each chart."""
+    chart_obj = np.zeros(charts.count, np.int64)
+    ok = charts.chart >= 0
+    chart_obj[charts.chart[ok]] = surfaces.object_index[ok]
+    return chart_obj
 
 
 def index_surfaces(surfaces: Surfaces, settings: AtlasSettings, backend: str = "auto") -> SurfaceIndex:
@@ -227,19 +275,13 @@ def index_surfaces(surfaces: Surfaces, settings: AtlasSettings, backend: str = "
     rays = make_rays(surfaces.vertices, surfaces.triangles, backend)
     planar, flat, deviation = _chart_planarity(surfaces, charts)
     nc = charts.count
-    chart_obj = np.zeros(nc, np.int64)
-    ok = charts.chart >= 0
-    chart_obj[charts.chart[ok]] = surfaces.object_index[ok]
+    chart_obj = _chart_objects(surfaces, charts)
     front = surfaces.receiver[chart_obj].copy()
-    back = np.zeros(nc, bool)
-    for c in range(nc):
-        if not front[c]:
-            continue
-        mode = settings.object_settings(int(chart_obj[c])).sides
-        back[c] = mode == "BOTH" or (mode == "AUTO" and not charts.closed[c])
-    auto_open = np.flatnonzero(
-        back & np.array([settings.object_settings(int(o)).sides == "AUTO" for o in chart_obj], bool)
-    )
+    modes = np.array([settings.object_settings(o).sides for o in range(len(surfaces.object_names))])
+    mode = modes[chart_obj] if nc else np.zeros(0, str)
+    auto = mode == "AUTO"
+    back = front & ((mode == "BOTH") | (auto & ~charts.closed))
+    auto_open = np.flatnonzero(back & auto)
     if len(auto_open):
         back[auto_open] = _back_side_sees_something(surfaces, charts, rays, auto_open)
     table = np.full((nc, 2), -1, np.int64)
@@ -265,9 +307,9 @@ def _sheet_spacing(index: SurfaceIndex, settings: AtlasSettings) -> np.ndarray:
     ch = index.charts
     ok = ch.chart >= 0
     chart_area = np.bincount(ch.chart[ok], weights=ch.areas[ok], minlength=ch.count)
-    chart_obj = np.zeros(ch.count, np.int64)
-    chart_obj[ch.chart[ok]] = s.object_index[ok]
-    density = np.array([settings.object_settings(int(o)).density for o in chart_obj])[index.sheet_chart]
+    chart_obj = _chart_objects(s, ch)
+    per_object = np.array([settings.object_settings(o).density for o in range(len(s.object_names))], float)
+    density = per_object[chart_obj][index.sheet_chart]
     area = chart_area[index.sheet_chart]
     if settings.patch_size is not None:
         base = settings.patch_size
@@ -277,13 +319,48 @@ def _sheet_spacing(index: SurfaceIndex, settings: AtlasSettings) -> np.ndarray:
 
 
 def _place_all(index: SurfaceIndex, settings: AtlasSettings, spacing: np.ndarray) -> tuple[list[Placed], int]:
+    """Place patches sheet by sheet; each Placed's triangle holds global triangle indices."""
     s = index.surfaces
     ch = index.charts
     ext = s.extent
-    out = []
+    # Triangles grouped by chart once (not a search over all triangles per sheet).
+    valid = np.flatnonzero(ch.chart >= 0)
+    by_chart = valid[np.argsort(ch.chart[valid], kind="stable")]
+    n_per = np.bincount(ch.chart[valid], minlength=ch.count)
+    end = np.cumsum(n_per)
+    start = end - n_per
+    out: list[Placed | None] = [None] * len(index.sheet_chart)
     total = 0
+    # Small planar sheets (a tiny cube's face) all at once: most fit in one grid cell.
+    small = np.flatnonzero(index.flat[index.sheet_chart] & (n_per[index.sheet_chart] <= SMALL_SHEET))
+    if len(small):
+        c = index.sheet_chart[small]
+        side = index.sheet_side[small]
+        owner = np.repeat(np.arange(len(small)), n_per[c])
+        tri = by_chart[_ranges_flat(start[c], n_per[c])]
+        corners = s.corners[tri]
+        corners = np.where((side[owner] < 0)[:, None, None], corners[:, ::-1], corners)
+        nrm = side[:, None] * np.add.reduceat(
+            ch.normals[tri] * ch.areas[tri, None], start_of(n_per[c]), axis=0
+        )
+        done, got, p = place_planar_small(
+            corners, owner, len(small), nrm, spacing[small], settings.overlap, settings.shapes, ext
+        )
+        p.thickness = p.thickness + 2.0 * index.deviation[c[got]]
+        p.triangle = tri[p.triangle]
+        empty = Placed(
+            *(np.zeros((0, 3)) for _ in range(3)), *(np.zeros(0) for _ in range(4)), np.zeros(0, np.int64)
+        )
+        empty.shapes = empty.shapes.astype(np.int8)
+        for k in small[done]:
+            out[k] = empty
+        for j, k in enumerate(small[got]):
+            out[k] = Placed(*(getattr(p, f.name)[j : j + 1] for f in dataclass_fields(Placed)))
+        total += len(got)
     for k, (c, side) in enumerate(zip(index.sheet_chart, index.sheet_side, strict=True)):
-        tri = np.flatnonzero(ch.chart == c)
+        if out[k] is not None:
+            continue
+        tri = by_chart[start[c] : end[c]]
         corners = s.corners[tri]
         if side < 0:
             corners = corners[:, ::-1]
@@ -293,11 +370,25 @@ def _place_all(index: SurfaceIndex, settings: AtlasSettings, spacing: np.ndarray
             p.thickness = p.thickness + 2.0 * index.deviation[c]
         else:
             p = place_curved(corners, side * ch.normals[tri], spacing[k], settings.overlap, ext, seed=int(k))
-        out.append(p)
+        p.triangle = tri[p.triangle]
+        out[k] = p
         total += len(p.radii)
         if total > settings.max_patches:
             break
-    return out, total
+    return [p for p in out if p is not None], total
+
+
+SMALL_SHEET = 4  # planar sheets of at most this many triangles are placed together
+
+
+def start_of(counts: np.ndarray) -> np.ndarray:
+    """First position of each group in a flat array of groups of these sizes."""
+    return np.cumsum(counts) - counts
+
+
+def _ranges_flat(first: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Concatenated ranges first[i] .. first[i] + counts[i] - 1."""
+    return np.repeat(first - start_of(counts), counts) + np.arange(int(counts.sum()))
 
 
 def _too_many(count: int, settings: AtlasSettings) -> OvradError:
@@ -338,9 +429,8 @@ def build_atlas(
     if total > settings.max_patches:
         raise _too_many(total, settings)
     sheet = np.concatenate([np.full(len(p.radii), k) for k, p in enumerate(placed)])
-    chart_obj = np.zeros(index.charts.count, np.int64)
-    ok = index.charts.chart >= 0
-    chart_obj[index.charts.chart[ok]] = surfaces.object_index[ok]
+    chart_obj = _chart_objects(surfaces, index.charts)
+    triangle = np.concatenate([p.triangle for p in placed])
     n = total
     rng = np.random.default_rng(7)
     atlas = Atlas(
@@ -358,6 +448,8 @@ def build_atlas(
         overlap_count=np.zeros(n, np.int64),
         random=rng.random(n),
         beta=settings.beta,
+        triangle=surfaces.local_triangle[triangle],
+        side=index.sheet_side[sheet].astype(np.int8),
     )
     report_stage(progress, 0.2, f"integrating overlaps of {n} patches")
     C, support = overlap_matrix(

@@ -83,12 +83,50 @@ class Problem:
     seconds: dict
 
 
+def _stored_sheets(atlas: Atlas, index: SurfaceIndex) -> np.ndarray:
+    """Sheets from the atlas's own triangle and side (-1 where it has none, or they no longer fit).
+
+    The stored triangle must still hold the patch: the patch centre within the patch's thickness
+    of the triangle's plane (a border square's centre may lie beyond the triangle, never off its
+    plane); otherwise the mesh changed and the patch is located by search instead.
+    """
+    n = len(atlas)
+    if atlas.triangle is None or atlas.side is None:
+        return np.full(n, -1, np.int64)
+    s = index.surfaces
+    tri = s.global_triangle(atlas.source_object, atlas.triangle)
+    side = np.where(np.asarray(atlas.side) < 0, -1, 1)
+    sheet = np.where(np.asarray(atlas.side) != 0, index.sheet_of(tri, side), -1)
+    ok = np.flatnonzero(sheet >= 0)
+    t = tri[ok]
+    height = np.einsum("ij,ij->i", atlas.centers[ok] - s.corners[t, 0], index.charts.normals[t])
+    # float32 attributes: centres carry ~1e-7 relative rounding
+    tol = 1.5 * atlas.thickness[ok] + 1e-6 * s.extent
+    sheet[ok[np.abs(height) > tol]] = -1
+    return sheet
+
+
 def attach_sheets(atlas: Atlas, index: SurfaceIndex) -> Atlas:
-    """Give each patch the sheet index of this index, found by locating its centre on the surface.
+    """Give each patch the sheet index of this index: from the triangle and side the atlas stores,
+    else (atlases made before they were stored, or meshes changed) by locating its centre.
 
     Sheet numbers depend on which meshes were read and in what order; an atlas read back from
     Blender is re-attached this way, so it does not matter how the scene was read when it was made.
     """
+    sheet = _stored_sheets(atlas, index)
+    todo = np.flatnonzero(sheet < 0)
+    if len(todo):
+        sheet[todo] = _located_sheets(atlas.select(todo), index)
+    if np.any(sheet < 0):
+        raise OvradError(
+            f"{int(np.sum(sheet < 0))} patches no longer lie on any surface: the meshes changed "
+            "since the atlas was generated; generate the atlas again"
+        )
+    return replace(atlas, sheet=sheet)
+
+
+def _located_sheets(atlas: Atlas, index: SurfaceIndex) -> np.ndarray:
+    """Sheets found by locating each patch's centre on the surface (-1 where none is found)."""
     n = atlas.normals
     lift = atlas.thickness * 1.0001 + 1e-9 * index.surfaces.extent
     t, tri = index.rays.closest_hit(atlas.centers + lift[:, None] * n, -n, 2.0 * lift)
@@ -98,23 +136,28 @@ def attach_sheets(atlas: Atlas, index: SurfaceIndex) -> Atlas:
     if len(missing):
         # centre off the surface (a disk on a border cell): try the patch's rule points
         probe = replace(atlas, sheet=np.zeros(len(atlas), np.int64))
+        views = {s: _all_sheets_view(index, s) for s in (1, -1)}
         for k in missing:
-            q = patch_quadrature(probe, _all_sheets_view(index), np.array([k]), 4, rings=2)
-            hit = q.triangle[q.triangle >= 0]
-            if len(hit):
-                s = index.sheet_of(hit[:1], np.array([side[k]]))
-                sheet[k] = s[0]
-    if np.any(sheet < 0):
-        raise OvradError(
-            f"{int(np.sum(sheet < 0))} patches no longer lie on any surface: the meshes changed "
-            "since the atlas was generated; generate the atlas again"
-        )
-    return replace(atlas, sheet=sheet)
+            # either side: the centre hit nothing, so it tells neither (the side whose rule
+            # points land on the surface facing the patch's way is the patch's)
+            best = (0, -1)
+            for s, view in views.items():
+                q = patch_quadrature(probe, view, np.array([k]), 4, rings=2)
+                hit = q.triangle[q.triangle >= 0]
+                if len(hit) > best[0]:
+                    best = (len(hit), int(index.sheet_of(hit[:1], np.array([s]))[0]))
+            sheet[k] = best[1]
+    return sheet
 
 
-def _all_sheets_view(index: SurfaceIndex) -> SurfaceIndex:
-    """An index whose every sheet is 0, so rule points are accepted on any sheet (for locating)."""
-    return replace(index, sheet_table=np.zeros_like(index.sheet_table))
+def _all_sheets_view(index: SurfaceIndex, side: int) -> SurfaceIndex:
+    """An index whose every sheet is 0, on `side`, so rule points are accepted on any sheet's
+    that side (for locating)."""
+    return replace(
+        index,
+        sheet_table=np.zeros_like(index.sheet_table),
+        sheet_side=np.full_like(index.sheet_side, side),
+    )
 
 
 def both_sides_index(surfaces: Surfaces, backend: str = "auto") -> SurfaceIndex:

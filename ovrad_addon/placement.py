@@ -29,6 +29,7 @@ class Placed:
     shapes: np.ndarray  # (k,) int8
     thickness: np.ndarray  # (k,)
     min_cos: np.ndarray  # (k,)
+    triangle: np.ndarray  # (k,) int64: a triangle (of those given) of the sheet under the patch
 
 
 def _ranges(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -121,7 +122,8 @@ def place_planar(
     iy = tlo[owner, 1] + np.arange(rep.sum()) - np.repeat(start, rep)
     clo = lo + np.stack([ixr, iy], 1) * h
     hit = _sat_overlap(p2[owner], clo, clo + h, eps)
-    cells = np.unique(ixr[hit] * ncell[1] + iy[hit])
+    cells, first = np.unique(ixr[hit] * ncell[1] + iy[hit], return_index=True)
+    cell_tri = owner[hit][first]  # a triangle overlapping each cell (its patch's sheet is under it)
     cx, cy = cells // ncell[1], cells % ncell[1]
     # Boundary edges: edges used once among the sheet's triangles (welded by 2-D position).
     e_a = p2[:, [0, 1, 2]].reshape(-1, 2)
@@ -175,6 +177,7 @@ def place_planar(
         shapes=np.where(square, SHAPE_SQUARE, SHAPE_DISK).astype(np.int8),
         thickness=1e-3 * radii + 1e-6 * extent,
         min_cos=np.full(k, 0.9),
+        triangle=cell_tri,
     )
 
 
@@ -251,4 +254,96 @@ def place_curved(
         shapes=np.zeros(k, np.int8),
         thickness=1.05 * thick + 1e-3 * radii + 1e-6 * extent,
         min_cos=min_cos,
+        triangle=tri[first],
     )
+
+
+def place_planar_small(
+    corners: np.ndarray,
+    sheet: np.ndarray,
+    count: int,
+    normal: np.ndarray,
+    spacing: np.ndarray,
+    overlap: float,
+    shapes: str,
+    extent: float,
+) -> tuple[np.ndarray, np.ndarray, Placed]:
+    """place_planar for many small planar sheets at once (no Python loop over sheets).
+
+    corners (m, 3, 3) the triangles of `count` sheets, grouped by sheet (sheet (m,) ascending,
+    a few triangles each), normal (count, 3), spacing (count,). Sheets that fit in one grid
+    cell get their one patch here; returns (done (count,) bool, which sheets got a patch
+    (k,), their Placed (k patches, triangle indexing `corners`)). Sheets not done must go
+    through place_planar. Same placement as place_planar (the bounding
+    rectangle's angle is searched among all corner pairs, a superset of the hull's edges).
+    """
+    n = normal / np.linalg.norm(normal, axis=1, keepdims=True)
+    helper = np.eye(3)[np.argmin(np.abs(n), axis=1)]
+    e1 = np.cross(helper, n)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(n, e1)
+    k_per = np.bincount(sheet, minlength=count)
+    first = np.cumsum(k_per) - k_per
+    origin = np.add.reduceat(corners.sum(axis=1), first, axis=0) / (3 * k_per)[:, None]
+    rel = corners - origin[sheet][:, None]
+    p2 = np.stack([np.einsum("tvk,tk->tv", rel, e1[sheet]), np.einsum("tvk,tk->tv", rel, e2[sheet])], -1)
+    # Points per sheet, padded with the sheet's first point (which changes no extent).
+    width = 3 * int(k_per.max())
+    slot = (np.arange(len(sheet)) - first[sheet])[:, None] * 3 + np.arange(3)[None]
+    pts = np.repeat(p2[first, :1], width, axis=1)
+    pts[np.repeat(sheet, 3), slot.ravel()] = p2.reshape(-1, 2)
+    d = pts[:, None, :, :] - pts[:, :, None, :]  # (S, P, P, 2) every pair
+    ang = np.mod(np.arctan2(d[..., 1], d[..., 0]), np.pi / 2).reshape(count, -1)
+    ang = np.where(np.hypot(d[..., 0], d[..., 1]).reshape(count, -1) > 0, ang, np.nan)
+    c, s = np.cos(ang), np.sin(ang)  # (S, A)
+    x = pts[:, None, :, 0] * c[..., None] + pts[:, None, :, 1] * s[..., None]  # (S, A, P)
+    y = -pts[:, None, :, 0] * s[..., None] + pts[:, None, :, 1] * c[..., None]
+    with np.errstate(invalid="ignore"):
+        area = np.ptp(x, axis=2) * np.ptp(y, axis=2)
+        area = np.where(np.isnan(area), np.inf, area)  # coincident pairs give no angle
+        good = area <= area.min(axis=1, keepdims=True) * (1 + 1e-9)
+    best = np.min(np.where(good, ang, np.inf), axis=1)
+    best = np.where(np.isfinite(best), best, 0.0)
+    c, s = np.cos(best)[:, None], np.sin(best)[:, None]
+    t1 = c * e1 + s * e2
+    t2 = np.cross(n, t1)
+    p2 = np.stack([np.einsum("tvk,tk->tv", rel, t1[sheet]), np.einsum("tvk,tk->tv", rel, t2[sheet])], -1)
+    lo = np.minimum.reduceat(p2.min(axis=1), first, axis=0)
+    hi = np.maximum.reduceat(p2.max(axis=1), first, axis=0)
+    ncell = np.maximum(np.ceil((hi - lo) / spacing[:, None] - 1e-9), 1).astype(np.int64)
+    one = np.all(ncell == 1, axis=1)
+    h = np.maximum(hi - lo, 1e-300)
+    eps = 1e-9 * extent  # as place_planar's: a sheet within one cell is smaller than the scene
+    hit = _sat_overlap(p2, lo[sheet], (lo + h)[sheet], eps) & one[sheet]
+    idx = np.flatnonzero(hit)
+    has = np.zeros(count, bool)
+    has[sheet[idx]] = True
+    tri_first = np.full(count, -1, np.int64)
+    tri_first[sheet[idx[::-1]]] = idx[::-1]  # the first hit triangle of each sheet
+    done = one.copy()  # one-cell sheets are done (with no patch when no triangle has area)
+    keep = np.flatnonzero(one & has)
+    lo, hi, h = lo[keep], hi[keep], h[keep]
+    k = len(keep)
+    square = np.full(k, shapes != "DISKS")  # a planar sheet always has border edges in its one cell
+    half_diag = 0.5 * np.hypot(h[:, 0], h[:, 1])
+    half_side = 0.5 * h.max(axis=1)
+    radii = overlap * np.where(square, half_side, half_diag)
+    centre2 = lo + 0.5 * h
+    slack = np.where(square, radii - 0.5 * h.max(axis=1), (radii - half_diag) / np.sqrt(2.0))[:, None]
+    reach = radii[:, None]
+    lo_c = np.maximum(lo + reach, centre2 - slack)
+    hi_c = np.minimum(hi - reach, centre2 + slack)
+    e = eps
+    centre2 = np.where(lo_c <= hi_c + e, np.minimum(np.maximum(centre2, lo_c), hi_c + e), centre2)
+    centers = origin[keep] + centre2[:, :1] * t1[keep] + centre2[:, 1:] * t2[keep]
+    placed = Placed(
+        centers=centers,
+        normals=n[keep],
+        tangents=t1[keep],
+        radii=radii,
+        shapes=np.where(square, SHAPE_SQUARE, SHAPE_DISK).astype(np.int8),
+        thickness=1e-3 * radii + 1e-6 * extent,
+        min_cos=np.full(k, 0.9),
+        triangle=tri_first[keep],
+    )
+    return done, keep, placed

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from scipy.sparse import coo_matrix
@@ -68,16 +69,46 @@ class Surfaces:
         rec = np.ones(len(names), bool) if receiver is None else np.asarray(receiver, bool)
         return Surfaces(v, t, oi, rho, em, names, rec)
 
-    @property
+    # Computed once per Surfaces (frozen, so the arrays they derive from never change); callers
+    # must not write into them.
+    @cached_property
     def corners(self) -> np.ndarray:
         """(T, 3, 3) triangle corner positions."""
         return self.vertices[self.triangles]
 
-    @property
+    @cached_property
     def extent(self) -> float:
         """Length of the bounding box diagonal (the scene's scale)."""
-        used = self.vertices[np.unique(self.triangles)]
-        return float(np.linalg.norm(used.max(axis=0) - used.min(axis=0)))
+        used = np.zeros(len(self.vertices), bool)
+        used[self.triangles.ravel()] = True
+        v = self.vertices[used]
+        return float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
+
+    @cached_property
+    def _by_object(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(triangles sorted by object, stably; first position of each object in it; counts)."""
+        order = np.argsort(self.object_index, kind="stable")
+        counts = np.bincount(self.object_index, minlength=len(self.object_names))
+        return order, np.cumsum(counts) - counts, counts
+
+    @cached_property
+    def local_triangle(self) -> np.ndarray:
+        """(T,) index of each triangle among its own object's triangles (in their order)."""
+        order, start, _ = self._by_object
+        local = np.empty(len(order), np.int64)
+        local[order] = np.arange(len(order)) - start[self.object_index[order]]
+        return local
+
+    def global_triangle(self, obj, local) -> np.ndarray:
+        """Triangle indices from (object, index among that object's triangles); -1 where out of range."""
+        order, start, counts = self._by_object
+        obj = np.asarray(obj, np.int64)
+        local = np.asarray(local, np.int64)
+        ok = (obj >= 0) & (obj < len(counts)) & (local >= 0)
+        ok[ok] &= local[ok] < counts[obj[ok]]
+        out = np.full(np.broadcast(obj, local).shape, -1, np.int64)
+        out[ok] = order[start[obj[ok]] + local[ok]]
+        return out
 
 
 def _per_triangle_rgb(value, n: int, default: float, what: str) -> np.ndarray:
