@@ -15,6 +15,13 @@ an emitter sends back only what it reflects. The hit's reflected radiosity is ta
 light included: the sun patch on the floor lights the wall as indirect light. Rays that escape, or
 land on a side without patches (the inside of a closed block), bring nothing.
 
+Near hits are looked up again. A ray that lands closer than a patch radius (a point on a concave
+edge or at an object's foot sends half its rays into the neighbouring face at distance ~0) would
+read the patches' radiosity there, which is their mean over their support: too bright in a corner
+(which sees less of the room than the patch's middle) and blurred across a contact shadow. Those
+hits get their reflected light computed where they are instead, as a bake point does: direct light
+by shadow rays plus a second, smaller gather from the patches (NearField).
+
 Noise-free and repeatable: every point uses the same stratified pattern of directions (a fixed
 scrambled Sobol' net), turned into the point's tangent frame. Points of one flat face share
 a frame, so they cast parallel rays: the result is as smooth as the radiosity it looks up.
@@ -24,10 +31,12 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.stats import qmc
 
+from .direct import DirectLight, direct_irradiance
 from .geometry import tangent_frame
 from .lights import shadow_origin
 from .overlap import alpha_at, patch_average
@@ -62,6 +71,22 @@ def hemisphere_pattern(count: int, seed: int = GATHER_SEED) -> np.ndarray:
     return np.column_stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(1.0 - u[:, 0], 0.0))])
 
 
+NEAR_RAYS = 32  # second-level gather rays at a near hit
+NEAR_LIGHT_SAMPLES = 16  # shadow-ray samples of soft lamps and emitters at a near hit
+
+
+@dataclass(frozen=True)
+class NearField:
+    """How hits closer than `reach` x the local patch radius are evaluated: direct light of `light`
+    at the hit, plus a gather of `rays` from the patches; extra (n, 3) is the per-patch emission the
+    first-level values hold besides the reflected light (emitters not sampled as direct light)."""
+
+    light: DirectLight
+    extra: np.ndarray
+    rays: int = NEAR_RAYS
+    reach: float = 1.0
+
+
 def sampled_emission(atlas, index, emitters: np.ndarray | None, scale: float = 1.0, q: int = 4) -> np.ndarray:
     """(n, 3) exitance of each patch from the emitting triangles `emitters` ((T,) bool) only: the
     emission a bake point computes as direct light, which a gather must not count again."""
@@ -83,6 +108,7 @@ def gather_indirect(
     progress: Callable[[float], None] | None = None,
     chunk_rays: int = 1 << 17,
     workers: int = WORKERS,
+    near: NearField | None = None,
 ) -> np.ndarray:
     """Indirect irradiance (m, 3) in W/m^2 at points (m, 3) with unit normals (m, 3).
 
@@ -93,6 +119,8 @@ def gather_indirect(
     edge needs (a wall's foot: else the rays aimed into the wall start behind it and see nothing).
     Points go in chunks of about
     chunk_rays rays on `workers` threads; progress(fraction) is called on the calling thread.
+    near: evaluate hits closer than a patch radius where they are (see NearField), else from the
+    patches like the others.
     """
     pts = np.asarray(points, np.float64).reshape(-1, 3)
     nrm = np.asarray(normals, np.float64).reshape(-1, 3)
@@ -130,6 +158,12 @@ def gather_indirect(
         a = alpha_at(atlas, index, hp, tri[hit], np.where(facing < 0, 1, -1))
         got = np.zeros((len(dirs), 3))
         got[hit] = a @ values
+        if near is not None:
+            side = np.where(facing < 0, 1, -1)
+            close = t[hit] < near.reach * (a @ atlas.radii)
+            if np.any(close):
+                got[hit[close]] = _near_values(problem, radiosity, emission, near, hp[close], tri[hit][close],
+                                               side[close], a[close])  # fmt: skip
         return sl, got.reshape(-1, rays, 3).mean(axis=1)
 
     for sl, e in threaded(chunk, len(starts), workers):
@@ -137,6 +171,20 @@ def gather_indirect(
         if progress is not None:
             progress(sl.stop / m)
     return out
+
+
+def _near_values(
+    problem, radiosity, emission, near: NearField, points, triangles, sides, alpha
+) -> np.ndarray:
+    """Reflected radiosity (k, 3) at near hits, computed there: rho (H_direct + E_indirect) plus the
+    unsampled emission the patches give (near.extra)."""
+    index = problem.index
+    surfaces = index.surfaces
+    normals = index.charts.normals[triangles] * sides[:, None]
+    pts = inside(surfaces, points, triangles)
+    H = direct_irradiance(surfaces, index.rays, near.light, pts, normals)[0]
+    E = gather_indirect(problem, radiosity, emission, pts, normals, near.rays, None, workers=1)
+    return surfaces.reflectance[triangles] * (H + E) + alpha @ near.extra
 
 
 def inside(surfaces, points: np.ndarray, triangles) -> np.ndarray:
@@ -170,6 +218,7 @@ def gather_unique(
     rays: int,
     triangles=None,
     progress: Callable[[float], None] | None = None,
+    near: NearField | None = None,
 ) -> np.ndarray:
     """gather_indirect once per distinct (position, normal) (within 1e-7 of the scene extent),
     scattered back to every point: repeated points cost one gather (from the first one's
@@ -178,4 +227,6 @@ def gather_unique(
     nrm = np.asarray(normals, np.float64).reshape(-1, 3)
     first, inverse = unique_points(pts, nrm, 1e-7 * problem.index.surfaces.extent)
     tri = None if triangles is None else np.broadcast_to(np.asarray(triangles, np.int64), (len(pts),))[first]
-    return gather_indirect(problem, radiosity, emission, pts[first], nrm[first], rays, tri, progress)[inverse]
+    pts, nrm = pts[first], nrm[first]
+    out = gather_indirect(problem, radiosity, emission, pts, nrm, rays, tri, progress, near=near)
+    return out[inverse]

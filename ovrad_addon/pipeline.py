@@ -15,7 +15,7 @@ from scipy.sparse import csc_matrix, csr_matrix, diags, spmatrix
 from .atlas import Atlas, SurfaceIndex, index_surfaces
 from .direct import DirectLight, direct_irradiance, triangle_normals
 from .errors import OvradError
-from .gather import MAX_RAYS, gather_unique, sampled_emission
+from .gather import MAX_RAYS, NEAR_LIGHT_SAMPLES, NearField, gather_unique, sampled_emission
 from .lights import Lamp
 from .overlap import alpha_at, overlap_matrix, patch_average, patch_quadrature, reconstruct
 from .progress import StageCallback, report_stage
@@ -361,8 +361,9 @@ def _at_points(problem: Problem, radiosity, points, triangles, sides, first_shot
     if light.gather_rays > 0:
         atlas, index = problem.atlas, problem.index
         own = sampled_emission(atlas, index, light.emitters, light.emission_scale)
-        H = H + gather_unique(problem, radiosity, own, pts, normals, light.gather_rays, tri)
         coeffs = patch_emission(problem, light.emission_scale)
+        near = NearField(replace(light, samples=min(light.samples, NEAR_LIGHT_SAMPLES)), coeffs - own)
+        H = H + gather_unique(problem, radiosity, own, pts, normals, light.gather_rays, tri, near=near)
         covered = index.sheet_of(tri, side) >= 0
     # --- end of final gather
     return tri, a, coeffs, np.where(covered[:, None], H, 0.0)
