@@ -167,9 +167,7 @@ def read_scene(depsgraph, receivers, occluders=(), model=None) -> SceneMeshes:
         for it in group:
             if len(it.local.triangles) == 0:
                 if role == "receiver":
-                    warnings.append(
-                        f"'{it.name}' has no faces; skipped (give it faces, or leave it out of the selection)"
-                    )
+                    warnings.append(f"'{it.name}' has no faces; skipped (give it faces or leave it out)")
                 continue
             if id(it.local) not in colors:  # a shared mesh's materials are read once
                 colors[id(it.local)] = _read_mesh(it.local, warnings)

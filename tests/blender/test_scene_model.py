@@ -103,7 +103,7 @@ def test_a_collection_instance_shadows_and_reflects_like_the_same_real_object(ov
     co, bare = bake_floor(fresh_scene, "none")
     _, real = bake_floor(blender_env_reset(), "object")
     _, inst = bake_floor(blender_env_reset(), "instance")
-    env = next(o for o in bpy.context.scene.objects if "ovrad_environment_key" in o)
+    env = env_object()
     assert len(env.data.vertices) > 20 and env.hide_render  # the pillar's patches, hidden
     # Equal within the solve's noise: the same surfaces, read once as an object, once as an instance.
     rel = np.sqrt(np.mean((inst - real) ** 2)) / np.sqrt(np.mean(real**2))
@@ -117,13 +117,17 @@ def test_a_collection_instance_shadows_and_reflects_like_the_same_real_object(ov
     assert real[front, 0] > 1.03 * bare[front, 0]
 
 
+def env_object():
+    return next((o for o in bpy.context.scene.objects if "ovrad_environment_key" in o), None)
+
+
 def blender_env_reset():
     import blender_env
 
     return blender_env.reset_scene()
 
 
-def test_geometry_nodes_instances_are_read(ovrad, fresh_scene):
+def test_geometry_nodes_instances_are_read(ovrad, fresh_scene, monkeypatch, capsys):
     bpy.ops.mesh.primitive_plane_add(size=2.0, location=(0.0, 0.0, 3.0))
     scatter = bpy.context.active_object
     tree = bpy.data.node_groups.new("scatter", "GeometryNodeTree")
@@ -148,7 +152,20 @@ def test_geometry_nodes_instances_are_read(ovrad, fresh_scene):
     sun()
     select(fl)
     assert bpy.ops.ovrad.generate_atlas() == {"FINISHED"}
+
+    def cancel_at_first_line(job):
+        assert bpy.ops.ovrad.cancel_solve() == {"FINISHED"}
+
+    with monkeypatch.context() as patch:
+        patch.setattr(ovrad.operators.solve_job, "ProgressPrinter", lambda: cancel_at_first_line)
+        assert bpy.ops.ovrad.solve() == {"CANCELLED"}
+    assert env_object() is None  # a cancelled solve makes no environment atlas
     assert bpy.ops.ovrad.solve() == {"FINISHED"}
+    assert len(env_object().data.vertices) > 0
+    capsys.readouterr()
+    # Solving again reads the stored environment back: the same patches, so the form factors are reused.
+    assert bpy.ops.ovrad.solve() == {"FINISHED"}
+    assert "reusing the form factors" in capsys.readouterr().out
     assert bpy.ops.ovrad.bake_vertex() == {"FINISHED"}
     co = np.array([v.co for v in fl.data.vertices])
     values = colors(fl.data, "ovrad_radiance")[:, 0]
