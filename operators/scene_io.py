@@ -152,7 +152,7 @@ def read_scene(depsgraph, receivers, occluders=(), model=None) -> SceneMeshes:
             if not receivers
             else "none of the selected objects is a mesh: select at least one mesh object"
         )
-    reader = scene_model._Reader()
+    reader = scene_model.MeshCache()
 
     def item(obj):
         if isinstance(obj, scene_model.MeshItem):

@@ -72,7 +72,7 @@ def _is_atlas(obj) -> bool:
     return obj is not None and names.PROP_SOURCE in obj
 
 
-class _Reader:
+class MeshCache:
     """Reads each evaluated mesh once (keyed by its data and material slots)."""
 
     def __init__(self):
@@ -86,10 +86,10 @@ class _Reader:
         return self.cache[key]
 
 
-def object_item(obj, depsgraph, reader: _Reader | None = None) -> MeshItem:
+def object_item(obj, depsgraph, reader: MeshCache | None = None) -> MeshItem:
     """A scene object's own item, read through the depsgraph whether it renders or not."""
     ev = obj.evaluated_get(depsgraph)
-    local = (reader or _Reader()).local(ev)
+    local = (reader or MeshCache()).local(ev)
     return MeshItem(obj.name, obj, False, local, np.array(ev.matrix_world, np.float64))
 
 
@@ -98,7 +98,7 @@ def rendered_meshes(depsgraph) -> list[MeshItem]:
     instances, geometry-nodes instances) whose object and instancer render, and the scene's
     meshes the viewport depsgraph drops because they are hidden in the viewport only (Cycles
     renders them). Atlas objects are left out."""
-    reader, items, seen, counts = _Reader(), [], set(), {}
+    reader, items, seen, counts = MeshCache(), [], set(), {}
     for inst in depsgraph.object_instances:
         ev = inst.object
         if ev.type != "MESH":
