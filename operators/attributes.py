@@ -4,6 +4,7 @@ objects' POINT attributes, baked colours and their ownership marks), each write 
 from __future__ import annotations
 
 import hashlib
+from dataclasses import replace
 
 import bpy
 import numpy as np
@@ -204,6 +205,16 @@ def remove_atlas(obj) -> None:
         bpy.data.meshes.remove(mesh)
 
 
+def _from_stored(centers: np.ndarray, attrs: dict, beta: str) -> Atlas:
+    # Points are written in world space with an identity matrix; the matrix is ignored on purpose, as
+    # a moved atlas object no longer matches its surfaces anyway.
+    attrs = dict(attrs)
+    for key in (names.NORMAL, names.TANGENT):
+        v = attrs[key].astype(np.float64)
+        attrs[key] = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-30)
+    return Atlas.from_point_attributes(centers.reshape(-1, 3).astype(np.float64), attrs, beta=beta)
+
+
 def read_atlas(obj) -> Atlas:
     """An atlas object back into engine arrays (float32 in the file: unit vectors are renormalised)."""
     if not is_atlas(obj):
@@ -212,16 +223,50 @@ def read_atlas(obj) -> Atlas:
     n = len(mesh.vertices)
     co = np.empty(3 * n, np.float32)
     mesh.vertices.foreach_get("co", co)
-    # Points are written in world space with an identity matrix; the matrix is ignored on purpose, as
-    # a moved atlas object no longer matches its surfaces anyway.
-    centers = co.reshape(-1, 3).astype(np.float64)
     attrs = {
         a.name: read_point_attribute(mesh, a.name) for a in mesh.attributes if a.name.startswith("ovrad_")
     }
-    for key in (names.NORMAL, names.TANGENT):
-        v = attrs[key].astype(np.float64)
-        attrs[key] = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-30)
-    return Atlas.from_point_attributes(centers, attrs, beta=str(obj.get(names.PROP_BETA, "smooth")))
+    return _from_stored(co, attrs, str(obj.get(names.PROP_BETA, "smooth")))
+
+
+def as_stored(atlas: Atlas) -> Atlas:
+    """The atlas exactly as read_atlas() will read it back once written (float32 values), so a
+    solve of a new atlas and a bake of the stored one see the same patches."""
+    attrs = {k: np.asarray(v, _LAYOUT[kind][2]) for k, (v, kind) in atlas.point_attributes().items()}
+    out = _from_stored(np.asarray(atlas.centers, np.float32), attrs, atlas.beta)
+    return replace(out, source_object=atlas.source_object)
+
+
+def is_environment(obj) -> bool:
+    """The environment atlas: patches on every rendered mesh without an atlas of its own."""
+    return is_atlas(obj) and names.PROP_ENVIRONMENT in obj
+
+
+def environment_object(scene):
+    """The scene's environment atlas object, or None."""
+    return next((o for o in scene.objects if is_environment(o)), None)
+
+
+def write_environment(scene, atlas: Atlas, key: str) -> bpy.types.Object:
+    """Create, or replace the mesh of, the scene's one environment atlas object (hidden, in the
+    ovrad collection), marked with the fingerprint `key` of the surfaces it was built from."""
+    mesh = _atlas_mesh(names.ENVIRONMENT, atlas)
+    obj = environment_object(scene)
+    if obj is None:
+        obj = bpy.data.objects.new(names.ENVIRONMENT, mesh)
+        ensure_collection(scene).objects.link(obj)
+    else:
+        old = obj.data
+        obj.data = mesh
+        if old.users == 0:
+            bpy.data.meshes.remove(old)
+    obj.matrix_world = ((1, 0, 0, 0), (0, 1, 0, 0), (0, 0, 1, 0), (0, 0, 0, 1))
+    obj[names.PROP_SOURCE] = ""  # an atlas of no one object
+    obj[names.PROP_ENVIRONMENT] = key
+    obj[names.PROP_BETA] = atlas.beta
+    obj[names.PROP_VERSION] = ATLAS_VERSION
+    obj.hide_viewport = obj.hide_render = True
+    return obj
 
 
 def patch_count(obj) -> int:

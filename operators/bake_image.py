@@ -175,19 +175,27 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
     def execute(self, context):
         start = time.perf_counter()
         created: list[str] = []
+        warnings: list[str] = []
         try:
             targets = [o for o in context.selected_objects if o.type == "MESH" and not attributes.is_atlas(o)]
             solved = solved_atlases(context.scene)
             unsolved = [o.name for o in targets if o.name not in solved]
             if unsolved:
-                raise OvradError(f"not solved: {', '.join(unsolved)}: generate an atlas and run Solve first")
+                warnings.append(f"not solved: {', '.join(unsolved)}: generate an atlas and run Solve first")
+            targets = [o for o in targets if o.name in solved]
             if len(targets) > 1 and "{object}" not in self.filepath:
                 raise OvradError("several objects are selected: put {object} in the file path")
             depsgraph = context.evaluated_depsgraph_get()
             jobs = []
             for obj in targets:  # every check before any computation or write
-                uv, world = uv_triangles(obj, depsgraph, self.uv_map)
+                try:
+                    uv, world = uv_triangles(obj, depsgraph, self.uv_map)
+                except OvradError as e:
+                    warnings.append(f"'{obj.name}' not baked: {e}")
+                    continue
                 jobs.append((obj, uv, world, resolve_path(self.filepath, obj.name)))
+            if not jobs:
+                raise OvradError("; ".join(warnings) or "nothing to bake: select the meshes to bake")
             for *_, path in jobs:
                 prepare_folder(path, created)
             solution = load_solution(context)
@@ -195,13 +203,18 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
             order = [o.name for o in solution.receivers]
             results = []
             for obj, uv, world, path in jobs:
-                k = order.index(obj.name)
-                if len(uv) != int(np.sum(problem.surfaces.object_index == k)):
-                    raise OvradError(f"'{obj.name}' changed since it was read: try again")
+                k = order.index(obj.name) if obj.name in order else -1
+                if k < 0 or len(uv) != int(np.sum(problem.surfaces.object_index == k)):
+                    warnings.append(f"'{obj.name}' not baked: it changed since the solve (press Solve again)")
+                    continue
                 ids = firsts[k] + np.arange(len(uv))
                 texels = bake.rasterize(uv, world, ids, self.size, self.size, inset=INSET)
                 if len(texels) == 0:
-                    raise OvradError(f"the UV map of '{obj.name}' covers no texel centre at {self.size} px")
+                    warnings.append(
+                        f"'{obj.name}' not baked: its UV map covers no texel centre at {self.size} px "
+                        "(unwrap it, or bake a larger image)"
+                    )
+                    continue
                 values = bake_values(
                     problem, radiosity, texels, self.quantity, solution.first_shot, solution.light
                 )
@@ -209,6 +222,8 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
                 img, mask = bake.dilate(img, mask, self.margin)
                 img[..., 3] = mask
                 results.append((obj, img, path))
+            if not results:
+                raise OvradError("; ".join(warnings))
             images = []
             for obj, img, path in results:
                 stored = path
@@ -219,6 +234,8 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
             _remove_created(created)
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
+        for w in warnings:
+            self.report({"WARNING"}, w)
         seconds = time.perf_counter() - start
         listed = ", ".join(f"'{i.name}'" for i in images)
         self.report({"INFO"}, f"ovrad: baked {listed} ({self.size} px) in {seconds:.2f} s")

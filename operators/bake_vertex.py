@@ -23,6 +23,9 @@ from .solution import load_solution
 
 CHUNK = 1 << 18  # corners reconstructed at a time (bounds the sparse alpha matrices)
 NUDGE = 1e-3  # corners are moved this many patch radii into their triangle (see reconstruct)
+# Linked duplicates are baked once, as their mean, when every user is within this relative RMS of
+# it: below the solve's own noise (about 1-3 %), so the mean is as good as each user's own bake.
+DUPLICATE_TOLERANCE = 0.02
 
 
 def corner_angles(corners: np.ndarray) -> np.ndarray:
@@ -98,6 +101,55 @@ class ReceiverBake:
         return out
 
 
+def alike(values: list[np.ndarray]) -> bool:
+    """Whether the users of one mesh are lit alike: every user's values (n, 3) within
+    DUPLICATE_TOLERANCE relative RMS of their mean."""
+    mean = np.mean(values, axis=0)
+    scale = np.sqrt(np.mean(mean**2))
+    if scale == 0.0:
+        return True
+    return max(float(np.sqrt(np.mean((v - mean) ** 2))) for v in values) <= DUPLICATE_TOLERANCE * scale
+
+
+def bake_meshes(context, solution, name: str, domain: str, quantity: str) -> tuple[list[str], list]:
+    """(warnings, [(mesh, values (n, 3))]): the values to write on each receiver's mesh.
+
+    A receiver that cannot be baked is skipped with a warning saying why. Linked duplicates (one
+    mesh, several receivers) hold one set of colours: their mean when they are lit alike (see
+    alike()), else the mesh is skipped with a warning.
+    """
+    depsgraph = context.evaluated_depsgraph_get()
+    surfaces = solution.problem.surfaces
+    users: dict = {}  # mesh -> [(object, values)]
+    warnings = []
+    for i, obj in enumerate(solution.receivers):
+        mesh = obj.data
+        try:
+            if mesh.library is not None:
+                raise OvradError(f"the mesh of '{obj.name}' is linked from a library: make it local first")
+            attributes.check_target(mesh, name)
+            n_tri = int(np.sum(surfaces.object_index == i))
+            bake = ReceiverBake(obj, depsgraph, solution.first_triangle[i], n_tri)
+            values = bake.domain_values(bake.reconstruct(solution, quantity), domain)
+        except OvradError as e:
+            warnings.append(f"'{obj.name}' not baked: {e}")
+            continue
+        users.setdefault(mesh, []).append((obj, values))
+    writes = []
+    for mesh, baked in users.items():
+        values = [v for _, v in baked]
+        if len(baked) > 1 and not alike(values):
+            listed = ", ".join(f"'{o.name}'" for o, _ in baked)
+            warnings.append(
+                f"{listed} share the mesh '{mesh.name}' but are lit differently: not baked (one mesh "
+                "holds one set of colours; to bake each, select them and use Object > Relations > "
+                "Make Single User > Object & Data, then Generate Atlas, Solve and Bake again)"
+            )
+            continue
+        writes.append((mesh, np.mean(values, axis=0)))
+    return warnings, writes
+
+
 class OVRAD_OT_bake_vertex(bpy.types.Operator):
     bl_idname = "ovrad.bake_vertex"
     bl_label = "Bake Vertex Colors"
@@ -148,35 +200,23 @@ class OVRAD_OT_bake_vertex(bpy.types.Operator):
             if not name or name.startswith("."):
                 raise OvradError("give the bake an attribute name (not empty, not starting with '.')")
             solution = load_solution(context)
-            depsgraph = context.evaluated_depsgraph_get()
-            surfaces = solution.problem.surfaces
-            meshes = {}
-            bakes = []
-            for i, obj in enumerate(solution.receivers):
-                if obj.data.name in meshes:
-                    raise OvradError(
-                        f"'{meshes[obj.data.name]}' and '{obj.name}' share the mesh '{obj.data.name}': "
-                        "make it single-user (Object > Relations) before baking"
-                    )
-                meshes[obj.data.name] = obj.name
-                if obj.data.library is not None:
-                    raise OvradError(
-                        f"the mesh of '{obj.name}' is linked from a library: make it local first"
-                    )
-                attributes.check_target(obj.data, name)
-                n_tri = int(np.sum(surfaces.object_index == i))
-                bakes.append(ReceiverBake(obj, depsgraph, solution.first_triangle[i], n_tri))
-            values = [b.domain_values(b.reconstruct(solution, quantity), domain) for b in bakes]
+            warnings, writes = bake_meshes(context, solution, name, domain, quantity)
         except OvradError as e:
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
-        for bake, vals in zip(bakes, values, strict=True):
-            attributes.write_color(bake.obj.data, name, vals, domain)
+        if not writes:
+            self.report({"ERROR"}, "nothing was baked: " + "; ".join(warnings))
+            return {"CANCELLED"}
+        for w in warnings:
+            self.report({"WARNING"}, w)
+        for mesh, vals in writes:
+            attributes.write_color(mesh, name, vals, domain)
+        values = [v for _, v in writes]
         count = sum(len(v) for v in values)
         self.report(
             {"INFO"},
             f"ovrad: baked {quantity.lower()} into '{name}' ({domain.lower()}, {count:,} values) on "
-            f"{len(bakes)} mesh(es) in {time.perf_counter() - start:.2f} s",
+            f"{len(writes)} mesh(es) in {time.perf_counter() - start:.2f} s",
         )
         return {"FINISHED"}
 

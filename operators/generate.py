@@ -10,7 +10,7 @@ from bpy.props import EnumProperty
 
 from ..ovrad_addon.atlas import build_atlas
 from ..ovrad_addon.errors import OvradError
-from . import attributes, display, properties, scene_io
+from . import attributes, display, properties, scene_io, scene_model
 
 
 @contextmanager
@@ -60,7 +60,8 @@ class OVRAD_OT_generate_atlas(bpy.types.Operator):
         # Everything that can fail runs before the first write, so an error leaves the file as it was.
         try:
             depsgraph = context.evaluated_depsgraph_get()
-            meshes = scene_io.read_scene(depsgraph, selected, scene_io.default_occluders(context, selected))
+            model = scene_model.read_model(depsgraph, scene)
+            meshes = scene_io.read_scene(depsgraph, selected, model.others(selected), model)
             settings = properties.atlas_settings(scene.ovrad, meshes.objects)
             with _progress(context) as progress:
                 atlas = build_atlas(meshes.surfaces, settings, progress=progress)

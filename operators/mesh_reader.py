@@ -3,7 +3,7 @@ materials and UVs, as plain arrays (the scene reader and both bakes read meshes 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -78,14 +78,8 @@ def read_mesh(mesh, matrix_world, uv_map: str | None = None, owner: str = "", ma
     if uv_map is not None:
         per_loop = _get(_uv_layer(mesh, uv_map, owner).data, "uv", 2, np.float32)
         uv = per_loop[loops].astype(np.float64)
-    m = np.array(matrix_world, dtype=np.float64)
-    if np.linalg.det(m[:3, :3]) < 0.0:
-        # A mirroring matrix turns faces inside out; flipping the winding keeps normals as Blender shows them.
-        flip = [0, 2, 1]
-        triangles, loops = triangles[:, flip], loops[:, flip]
-        uv = None if uv is None else uv[:, flip]
-    return MeshData(
-        vertices=co.astype(np.float64) @ m[:3, :3].T + m[:3, 3],
+    local = MeshData(
+        vertices=co.astype(np.float64),
         triangles=triangles,
         loops=loops,
         polygons=_get(tris, "polygon_index", 1, np.int32).astype(np.int64),
@@ -95,15 +89,37 @@ def read_mesh(mesh, matrix_world, uv_map: str | None = None, owner: str = "", ma
         uv=uv,
         materials=tuple(mesh.materials) if materials is None else tuple(materials),
     )
+    return placed(local, matrix_world)
+
+
+def placed(data: MeshData, matrix_world) -> MeshData:
+    """MeshData moved by matrix_world (4 x 4): one mesh read once, placed for each of its instances."""
+    m = np.array(matrix_world, dtype=np.float64)
+    triangles, loops, uv = data.triangles, data.loops, data.uv
+    if np.linalg.det(m[:3, :3]) < 0.0:
+        # A mirroring matrix turns faces inside out; flipping the winding keeps normals as Blender shows them.
+        flip = [0, 2, 1]
+        triangles, loops = triangles[:, flip], loops[:, flip]
+        uv = None if uv is None else uv[:, flip]
+    return replace(
+        data, vertices=data.vertices @ m[:3, :3].T + m[:3, 3], triangles=triangles, loops=loops, uv=uv
+    )
+
+
+def read_evaluated(ev, uv_map: str | None = None, matrix_world=None) -> MeshData:
+    """The mesh of an evaluated object (a scene object or an instance's), placed by matrix_world
+    (default: the object's own; np.eye(4) keeps it in the object's space); its materials are the
+    object's material slots (else the mesh's)."""
+    mesh = ev.to_mesh()
+    try:
+        slots = [s.material for s in ev.material_slots] or list(mesh.materials)
+        matrix = ev.matrix_world if matrix_world is None else matrix_world
+        return read_mesh(mesh, matrix, uv_map, owner=ev.name, materials=slots)
+    finally:
+        ev.to_mesh_clear()
 
 
 def read_object(obj, depsgraph, uv_map: str | None = None) -> MeshData:
     """The evaluated mesh of a mesh object (modifiers applied) in world space; its materials are
     the object's material slots (else the mesh's)."""
-    ev = obj.evaluated_get(depsgraph)
-    mesh = ev.to_mesh()
-    try:
-        slots = [s.material for s in ev.material_slots] or list(mesh.materials)
-        return read_mesh(mesh, ev.matrix_world, uv_map, owner=obj.name, materials=slots)
-    finally:
-        ev.to_mesh_clear()
+    return read_evaluated(obj.evaluated_get(depsgraph), uv_map)

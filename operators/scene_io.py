@@ -12,7 +12,6 @@ from ..ovrad_addon import names
 from ..ovrad_addon.errors import OvradError
 from ..ovrad_addon.lights import Lamp, lamp_area
 from ..ovrad_addon.surfaces import Surfaces
-from . import mesh_reader
 
 # What a surface gets when its material cannot be read (and what Blender renders without a material).
 DEFAULT_REFLECTANCE = (0.8, 0.8, 0.8)
@@ -20,16 +19,18 @@ DEFAULT_REFLECTANCE = (0.8, 0.8, 0.8)
 
 @dataclass
 class SceneMeshes:
-    """Surfaces with the Blender objects they came from.
+    """Surfaces with the scene items they came from.
 
-    objects[i] is the object of surfaces.object_names[i]; the first n_receivers are receivers
-    (they get patches), the rest only occlude.
+    items[i] (a scene_model.MeshItem) gave surfaces.object_names[i] and objects[i] is its object
+    (for an instance, the instanced object); the first n_receivers are receivers (they get
+    patches), the rest are everything else that renders (they occlude and, in a solve, reflect).
     """
 
     surfaces: Surfaces
     objects: list
     n_receivers: int
     warnings: list[str] = field(default_factory=list)
+    items: list = field(default_factory=list)
 
 
 def _constant(socket, what: str, material, warnings: list[str]):
@@ -98,32 +99,44 @@ def material_colors(material, warnings: list[str]) -> tuple[np.ndarray, np.ndarr
     return rho, np.maximum(em, 0.0)
 
 
-def _read_mesh(obj, depsgraph, warnings: list[str]):
-    """(vertices (V, 3) world, triangles (T, 3), reflectance (T, 3), emission (T, 3)) of one object."""
-    data = mesh_reader.read_object(obj, depsgraph)
-    colors = [material_colors(mat, warnings) for mat in data.materials] or [material_colors(None, warnings)]
+def _read_mesh(data, warnings: list[str]):
+    """(reflectance (T, 3), emission (T, 3)) of one mesh (MeshData) from its materials."""
+    colors = []
+    for mat in data.materials or (None,):
+        try:
+            colors.append(material_colors(mat, warnings))
+        except (KeyError, AttributeError, TypeError, ValueError) as e:
+            # A node setup this reader did not foresee: the mesh still takes part, in grey.
+            warnings.append(
+                f"material '{getattr(mat, 'name', mat)}' could not be read ({e}); using grey 0.8 "
+                "(use a Principled, Diffuse or Emission shader)"
+            )
+            colors.append((np.array(DEFAULT_REFLECTANCE), np.zeros(3)))
     slot = np.clip(data.material_index, 0, len(colors) - 1)
     rho = np.array([c[0] for c in colors])[slot]
     em = np.array([c[1] for c in colors])[slot]
-    return data.vertices, data.triangles, rho, em
+    return rho, em
 
 
-def default_occluders(context, receivers) -> list:
-    """Every other mesh that renders in the view layer: it gets no patches, but hides and bounds space."""
-    chosen = {o.name for o in receivers}
-    return [
-        o
-        for o in context.view_layer.objects
-        if o.type == "MESH" and o.name not in chosen and names.PROP_SOURCE not in o and not o.hide_render
-    ]
+def default_occluders(context, receivers, model=None) -> list:
+    """Every other mesh and instance that renders (scene_model.MeshItem): it gets no patches of
+    the receivers' own, but hides, bounds space and (in a solve) reflects light."""
+    from . import scene_model
+
+    if model is None:
+        model = scene_model.read_model(context.evaluated_depsgraph_get(), context.scene)
+    return model.others(receivers)
 
 
-def read_scene(depsgraph, receivers, occluders=()) -> SceneMeshes:
-    """Read receiver meshes (they get patches) and occluder meshes into one Surfaces.
+def read_scene(depsgraph, receivers, occluders=(), model=None) -> SceneMeshes:
+    """Read receiver meshes (they get patches) and the occluders (objects or scene_model
+    MeshItems) into one Surfaces; receivers are read from `model` when it holds them.
 
     Non-mesh objects, atlas objects and meshes without faces are skipped with a warning; raises
     OvradError when no receiver is left.
     """
+    from . import scene_model
+
     warnings: list[str] = []
     kept = []
     for obj in receivers:
@@ -139,17 +152,28 @@ def read_scene(depsgraph, receivers, occluders=()) -> SceneMeshes:
             if not receivers
             else "none of the selected objects is a mesh: select at least one mesh object"
         )
-    objects, parts = [], []
+    reader = scene_model.MeshCache()
+
+    def item(obj):
+        if isinstance(obj, scene_model.MeshItem):
+            return obj
+        own = model.item_of(obj) if model is not None else None
+        return own or scene_model.object_item(obj, depsgraph, reader)
+
+    occluder_items = [item(o) for o in occluders if isinstance(o, scene_model.MeshItem) or o.type == "MESH"]
+    items, parts, colors = [], [], {}
     n_receivers = 0
-    for role, group in (("receiver", kept), ("occluder", [o for o in occluders if o.type == "MESH"])):
-        for obj in group:
-            part = _read_mesh(obj, depsgraph, warnings)
-            if len(part[1]) == 0:
+    for role, group in (("receiver", [item(o) for o in kept]), ("occluder", occluder_items)):
+        for it in group:
+            if len(it.local.triangles) == 0:
                 if role == "receiver":
-                    warnings.append(f"'{obj.name}' has no faces; skipped")
+                    warnings.append(f"'{it.name}' has no faces; skipped (give it faces or leave it out)")
                 continue
-            objects.append(obj)
-            parts.append(part)
+            if id(it.local) not in colors:  # a shared mesh's materials are read once
+                colors[id(it.local)] = _read_mesh(it.local, warnings)
+            data = it.data()
+            items.append(it)
+            parts.append((data.vertices, data.triangles, *colors[id(it.local)]))
             n_receivers += role == "receiver"
     if n_receivers == 0:
         raise OvradError("the selected meshes have no faces: select at least one mesh with faces")
@@ -160,11 +184,12 @@ def read_scene(depsgraph, receivers, occluders=()) -> SceneMeshes:
         object_index=np.concatenate([np.full(len(p[1]), i) for i, p in enumerate(parts)]),
         reflectance=np.concatenate([p[2] for p in parts]),
         emission=np.concatenate([p[3] for p in parts]),
-        object_names=[o.name for o in objects],
-        receiver=np.arange(len(objects)) < n_receivers,
+        object_names=[it.name for it in items],
+        receiver=np.arange(len(items)) < n_receivers,
     )
     # The same material on many objects would repeat its warning.
-    return SceneMeshes(surfaces, objects, n_receivers, list(dict.fromkeys(warnings)))
+    objects = [it.obj for it in items]
+    return SceneMeshes(surfaces, objects, n_receivers, list(dict.fromkeys(warnings)), items)
 
 
 def _light_power(light, world_area: float, radius_area: float) -> float:

@@ -15,7 +15,7 @@ from ..ovrad_addon.errors import OvradError
 from ..ovrad_addon.lights import Lamp
 from ..ovrad_addon.pipeline import SolveSettings
 from ..ovrad_addon.surfaces import Surfaces
-from . import attributes, properties, scene_io
+from . import attributes, environment, properties, scene_io, scene_model
 
 
 @dataclass
@@ -23,7 +23,9 @@ class SolveInputs:
     """Everything the worker needs, read from bpy before it starts.
 
     atlas: all patches, atlas object after atlas object (atlas_names, counts); the first
-    len(atlas_names) objects of surfaces are their source meshes, in the same order.
+    len(sources) objects of surfaces are the source meshes of the first len(sources) atlas
+    objects, in the same order; the rest of surfaces (everything else that renders) is covered
+    by the environment atlas, last in atlas_names when there is one.
     """
 
     surfaces: Surfaces
@@ -35,15 +37,23 @@ class SolveInputs:
     sources: list
     key: str
     warnings: list[str] = field(default_factory=list)
+    environment: environment.Environment | None = None
 
     def first_triangle(self, i: int) -> int:
         """Index in surfaces.triangles of receiver i's first triangle."""
         return int(np.flatnonzero(self.surfaces.object_index == i)[0])
 
 
-def scene_atlases(scene) -> list[tuple]:
-    """(atlas object, source mesh object) of every non-empty atlas in the scene, by atlas name."""
-    found = sorted((o for o in scene.objects if attributes.is_atlas(o)), key=lambda o: o.name)
+def scene_atlases(scene, warnings: list[str]) -> list[tuple]:
+    """(atlas object, source mesh object) of every non-empty atlas in the scene, by atlas name.
+
+    An atlas that cannot be used (its source gone, not a mesh, outside the scene, or a second
+    atlas of one mesh) is left out with a warning; raises OvradError when none is left.
+    """
+    found = sorted(
+        (o for o in scene.objects if attributes.is_atlas(o) and not attributes.is_environment(o)),
+        key=lambda o: o.name,
+    )
     if not found:
         raise OvradError("no atlas in the scene: select the meshes to light and press Generate Atlas first")
     pairs, seen = [], {}
@@ -51,19 +61,26 @@ def scene_atlases(scene) -> list[tuple]:
         src_name = obj[names.PROP_SOURCE]
         src = bpy.data.objects.get(src_name)
         if src is None or src.type != "MESH":
-            raise OvradError(
-                f"the source mesh '{src_name}' of atlas '{obj.name}' is gone: generate the atlas again "
-                f"or delete '{obj.name}'"
+            warnings.append(
+                f"the source mesh '{src_name}' of atlas '{obj.name}' is gone: '{obj.name}' skipped "
+                f"(generate the atlas again or delete '{obj.name}')"
             )
-        if src_name in seen:
-            raise OvradError(f"'{seen[src_name]}' and '{obj.name}' are atlases of the same mesh: delete one")
-        if src.name not in scene.objects:
-            raise OvradError(f"the source mesh '{src_name}' of atlas '{obj.name}' is not in this scene")
-        seen[src_name] = obj.name
-        if attributes.patch_count(obj):
-            pairs.append((obj, src))
+        elif src_name in seen:
+            warnings.append(
+                f"'{seen[src_name]}' and '{obj.name}' are atlases of the same mesh: '{obj.name}' "
+                "skipped (delete one)"
+            )
+        elif src.name not in scene.objects:
+            warnings.append(
+                f"the source mesh '{src_name}' of atlas '{obj.name}' is not in this scene: skipped"
+            )
+        else:
+            seen[src_name] = obj.name
+            if attributes.patch_count(obj):
+                pairs.append((obj, src))
     if not pairs:
-        raise OvradError("every atlas in the scene is empty: generate the atlas again")
+        why = "; ".join(warnings) or "every atlas is empty"
+        raise OvradError(f"no usable atlas in the scene: {why} (generate the atlases again)")
     return pairs
 
 
@@ -102,10 +119,10 @@ def light_key(surfaces: Surfaces, lamps) -> str:
     return h.hexdigest()
 
 
-def _light_warnings(surfaces: Surfaces, lamps, scene, n_receivers: int) -> list[str]:
-    """Light the engine will not see (world, emitters without atlas); raises when nothing emits."""
+def _light_warnings(surfaces: Surfaces, lamps, world, receiver: np.ndarray) -> list[str]:
+    """Light the engine will not see (world, emitters without patches); raises when nothing
+    emits. receiver (T,) bool: the triangles that have patches."""
     out = []
-    world = scene_io.read_world(scene)
     if world is None:
         out.append("the world is not a constant colour (nodes drive it): its light is ignored")
     elif world.max() > 0:
@@ -114,7 +131,6 @@ def _light_warnings(surfaces: Surfaces, lamps, scene, n_receivers: int) -> list[
             f"world light ({rgb}) is ignored: ovrad lights with lamps and emissive materials only "
             "(set the world's strength to 0 to compare with Cycles)"
         )
-    receiver = surfaces.object_index < n_receivers
     emits = surfaces.emission.max(axis=1) > 0
     for i in np.unique(surfaces.object_index[emits & ~receiver]):
         out.append(
@@ -131,36 +147,55 @@ def _light_warnings(surfaces: Surfaces, lamps, scene, n_receivers: int) -> list[
 
 
 def read_inputs(context, settings: SolveSettings | None = None, need_light: bool = True) -> SolveInputs:
-    """Read atlases, their source meshes (receivers), the other visible meshes (occluders) and lamps.
+    """Read the scene once: atlases and their source meshes (receivers), everything else that
+    renders (meshes, instances: the environment atlas covers them), lamps and world.
 
-    Raises OvradError for anything that stops a solve; changes nothing.
+    need_light: a solve (it checks there is light, and builds a new environment atlas when the
+    stored one is stale); else a bake (a stale environment is an error). Raises OvradError for
+    anything that stops a solve or bake; changes nothing.
     """
     scene = context.scene
-    pairs = scene_atlases(scene)
+    warnings: list[str] = []
+    pairs = scene_atlases(scene, warnings)
     sources = [src for _, src in pairs]
     depsgraph = context.evaluated_depsgraph_get()
-    meshes = scene_io.read_scene(depsgraph, sources, scene_io.default_occluders(context, sources))
-    if meshes.objects[: meshes.n_receivers] != sources:
-        kept = set(meshes.objects)
-        lost = [s.name for s in sources if s not in kept]
-        raise OvradError(f"{', '.join(map(repr, lost))} no longer has faces: generate its atlas again")
+    model = scene_model.read_model(depsgraph, scene)
+    meshes = scene_io.read_scene(depsgraph, sources, model.others(sources), model)
+    kept = meshes.objects[: meshes.n_receivers]
+    if kept != sources:
+        for obj, src in pairs:
+            if src not in kept:
+                warnings.append(f"'{src.name}' has no faces: its atlas '{obj.name}' is skipped")
+        pairs = [p for p in pairs if p[1] in kept]
+        sources = [src for _, src in pairs]
     parts = []
     for i, (obj, _) in enumerate(pairs):
         a = attributes.read_atlas(obj)
         parts.append(replace(a, source_object=np.full(len(a), i, np.int64)))
-    atlas = Atlas.concatenate(parts)
-    warnings = list(meshes.warnings)
-    lamps = scene_io.read_lamps(depsgraph, warnings)
+    receivers = Atlas.concatenate(parts)
+    warnings += meshes.warnings
+    base = properties.atlas_settings(scene.ovrad, meshes.objects)
+    env = environment.plan(scene, meshes.surfaces, len(sources), receivers, base, need_light, warnings)
+    surfaces, atlas = meshes.surfaces, receivers
+    atlas_names, counts = [o.name for o, _ in pairs], [len(p) for p in parts]
+    if env.atlas is not None:
+        surfaces = replace(surfaces, receiver=np.ones(len(surfaces.object_names), bool))
+        atlas = Atlas.concatenate([receivers, env.atlas])
+        atlas_names.append(env.name)
+        counts.append(len(env.atlas))
+    lamps = model.lamps
+    warnings += model.warnings
     if need_light:
-        warnings += _light_warnings(meshes.surfaces, lamps, scene, len(sources))
+        warnings += _light_warnings(surfaces, lamps, model.world, surfaces.receiver[surfaces.object_index])
     return SolveInputs(
-        surfaces=meshes.surfaces,
+        surfaces=surfaces,
         atlas=atlas,
         lamps=lamps,
         settings=settings or properties.solve_settings(scene.ovrad),
-        atlas_names=[o.name for o, _ in pairs],
-        counts=[len(p) for p in parts],
+        atlas_names=atlas_names,
+        counts=counts,
         sources=sources,
-        key=fingerprint(meshes.surfaces, atlas),
+        key=fingerprint(surfaces, atlas),
         warnings=list(dict.fromkeys(warnings)),
+        environment=env,
     )

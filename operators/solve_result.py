@@ -9,7 +9,7 @@ import bpy
 import numpy as np
 
 from ..ovrad_addon import names
-from . import attributes, display
+from . import attributes, display, environment
 from .solution import remember
 from .solve_inputs import SolveInputs, light_key
 from .solve_job import SolveJob, unshot_fraction
@@ -28,7 +28,9 @@ def save_state(scene, atlas_names: list[str]) -> SavedState:
     """What a solve of these atlas objects may change, as it is now."""
     saved = {}
     for name in atlas_names:
-        obj = bpy.data.objects[name]
+        obj = bpy.data.objects.get(name)
+        if obj is None or not attributes.is_atlas(obj):
+            continue  # an environment atlas the solve will make: nothing to restore
         mesh = obj.data
         old = {
             attr: attributes.read_point_attribute(mesh, attr) if attr in mesh.attributes else None
@@ -76,11 +78,15 @@ def write_radiosity(
     radiance = np.asarray(radiosity, np.float64) / np.pi
     direct = radiance if first_shot is None else np.asarray(first_shot, np.float64) / np.pi
     key = light_key(inputs.surfaces, inputs.lamps)
+    env = inputs.environment
+    pending = env is not None and env.new  # written by finish() only, so a cancel leaves the old one
     start = 0
-    for name, count in zip(inputs.atlas_names, inputs.counts, strict=True):
+    for i, (name, count) in enumerate(zip(inputs.atlas_names, inputs.counts, strict=True)):
         part = radiance[start : start + count]
         part_direct = direct[start : start + count]
         start += count
+        if pending and i == len(inputs.sources):
+            continue
         obj = bpy.data.objects.get(name)
         if obj is None or not attributes.is_atlas(obj) or attributes.patch_count(obj) != count:
             skipped.append(name)
@@ -128,6 +134,11 @@ def finish(scene, job: SolveJob, saved: SavedState | None) -> tuple[str, str]:
         if saved is not None:
             restore_state(scene, saved)
         return "CANCELLED", "ovrad: solve cancelled; the scene is as it was"
+    env = job.inputs.environment
+    if env is not None:
+        stored = environment.store(scene, env)
+        if env.atlas is not None:
+            job.inputs.atlas_names[len(job.inputs.sources)] = stored
     skipped = write_radiosity(scene, job.inputs, job.state.radiosity, job.state.first_shot)
     message = summary(job)
     if skipped:

@@ -22,10 +22,12 @@ PROP_SOURCE = "ovrad_source"  # name of the source mesh object
 PROP_BETA = "ovrad_beta"  # beta profile the atlas was built with ("box" or "smooth")
 PROP_VERSION = "ovrad_atlas_version"
 PROP_LIGHT_KEY = "ovrad_light_key"  # hash of the lamps and emission the stored solve used
+PROP_ENVIRONMENT = "ovrad_environment_key"  # on the environment atlas: fingerprint of its surfaces
 
 IMAGE_SUFFIX = "_ovrad"  # an image bake of object X is the image data block X + IMAGE_SUFFIX
 
 COLLECTION = "ovrad"
+ENVIRONMENT = "ovrad_environment"  # the atlas object of every rendered mesh without an atlas
 DISPLAY_NODE_GROUP = "ovrad_patch_display"
 DISPLAY_MODIFIER = "ovrad display"
 

@@ -143,15 +143,21 @@ def pick_receivers(scene, wanted: list[str] | None, names) -> list:
         if not found:
             raise BatchError("the scene has no visible mesh to bake")
         return found
-    out = []
+    out, skipped = [], []
     for name in wanted:
         obj = scene.objects.get(name)
         if obj is None:
             meshes = ", ".join(o.name for o in visible_meshes(scene, names)) or "none"
             raise BatchError(f"no object named '{name}' in the scene (meshes: {meshes})")
         if obj.type != "MESH":
-            raise BatchError(f"'{name}' is not a mesh ({obj.type.lower()})")
+            # one object never stops the bake: the others are baked
+            skipped.append(f"'{name}' is not a mesh ({obj.type.lower()})")
+            continue
         out.append(obj)
+    if not out:
+        raise BatchError("; ".join(skipped) + ": nothing to bake")
+    for why in skipped:
+        print(f"ovrad: warning: {why}: skipped", flush=True)
     return out
 
 

@@ -108,6 +108,6 @@ def test_meshes_without_faces_are_skipped_and_all_faceless_is_an_error(io, ovrad
     cube = bpy.context.active_object
     meshes = io.read_scene(bpy.context.evaluated_depsgraph_get(), [points, cube])
     assert meshes.surfaces.object_names == (cube.name,)
-    assert meshes.warnings == ["'points' has no faces; skipped"]
+    assert meshes.warnings == ["'points' has no faces; skipped (give it faces or leave it out)"]
     with pytest.raises(ovrad.ovrad_addon.errors.OvradError, match="no faces"):
         io.read_scene(bpy.context.evaluated_depsgraph_get(), [points])
