@@ -9,13 +9,11 @@ import bpy
 import numpy as np
 
 from ..ovrad_addon import names
+from ..ovrad_addon.albedo import TextureAlbedo
 from ..ovrad_addon.errors import OvradError
 from ..ovrad_addon.lights import Lamp, lamp_area
 from ..ovrad_addon.surfaces import Surfaces
-from . import mesh_reader
-
-# What a surface gets when its material cannot be read (and what Blender renders without a material).
-DEFAULT_REFLECTANCE = (0.8, 0.8, 0.8)
+from . import materials, mesh_reader
 
 
 @dataclass
@@ -32,80 +30,96 @@ class SceneMeshes:
     warnings: list[str] = field(default_factory=list)
 
 
-def _constant(socket, what: str, material, warnings: list[str]):
-    """A socket's value if nothing is plugged into it, else None (and a warning)."""
-    if socket.is_linked:
-        warnings.append(f"material '{material.name}': {what} is driven by nodes; using grey 0.8 instead")
-        return None
-    return socket.default_value
+@dataclass
+class _Mesh:
+    """One object's arrays for read_scene: vertices (V, 3) world, triangles (T, 3), reflectance
+    (T, 3), emission (T, 3); textures: (image name, pixels) of its albedo maps, image_of (T,) the
+    map of each triangle (-1: none) and uv (T, 3, 2) (None when no triangle has a map)."""
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+    reflectance: np.ndarray
+    emission: np.ndarray
+    textures: list = field(default_factory=list)
+    image_of: np.ndarray | None = None
+    uv: np.ndarray | None = None
 
 
-def _surface_shader(material):
-    tree = material.node_tree
-    if tree is None:
-        return None
-    out = tree.get_output_node("CYCLES") or tree.get_output_node("ALL")
-    if out is None or not out.inputs["Surface"].is_linked:
-        return None
-    node = out.inputs["Surface"].links[0].from_node
-    while node.bl_idname == "NodeReroute" and node.inputs[0].is_linked:
-        node = node.inputs[0].links[0].from_node
-    return node
-
-
-def material_colors(material, warnings: list[str]) -> tuple[np.ndarray, np.ndarray]:
-    """(reflectance (3,), emitted radiance (3,)) of a material, as Cycles would see its diffuse part.
-
-    Read: Principled BSDF (Base Color; Emission Color x Strength), Diffuse BSDF (Color), Emission
-    (Color x Strength, no reflection). Anything else gives grey 0.8 and a warning naming the material.
-    """
-    grey, black = np.array(DEFAULT_REFLECTANCE), np.zeros(3)
-    if material is None:
-        return grey, black
-    legacy = bpy.app.version < (5, 0, 0) and not material.use_nodes
-    if material.node_tree is None or legacy:
-        # A material without nodes renders as a diffuse surface of its viewport colour.
-        return np.array(material.diffuse_color[:3], float), black
-    node = _surface_shader(material)
-    kind = node.bl_idname if node is not None else None
-    rho, em = grey, black
-    if kind == "ShaderNodeBsdfPrincipled":
-        base = _constant(node.inputs["Base Color"], "Base Color", material, warnings)
-        rho = grey if base is None else np.array(base[:3], float)
-        col = _constant(node.inputs["Emission Color"], "Emission Color", material, warnings)
-        strength = _constant(node.inputs["Emission Strength"], "Emission Strength", material, warnings)
-        if col is not None and strength is not None:
-            em = np.array(col[:3], float) * float(strength)
-    elif kind == "ShaderNodeBsdfDiffuse":
-        base = _constant(node.inputs["Color"], "Color", material, warnings)
-        rho = grey if base is None else np.array(base[:3], float)
-    elif kind == "ShaderNodeEmission":
-        rho = np.zeros(3)
-        col = _constant(node.inputs["Color"], "Emission Color", material, warnings)
-        strength = _constant(node.inputs["Strength"], "Emission Strength", material, warnings)
-        if col is not None and strength is not None:
-            em = np.array(col[:3], float) * float(strength)
-    else:
-        what = "no surface shader" if node is None else f"a {node.bl_label} shader"
-        warnings.append(
-            f"material '{material.name}' has {what}; using grey 0.8 (read: Principled, Diffuse, Emission)"
-        )
-    if rho.min() < 0.0 or rho.max() > 1.0:
-        warnings.append(
-            f"material '{material.name}': reflectance {tuple(np.round(rho, 3))} clamped to [0, 1]"
-        )
-        rho = np.clip(rho, 0.0, 1.0)
-    return rho, np.maximum(em, 0.0)
-
-
-def _read_mesh(obj, depsgraph, warnings: list[str]):
-    """(vertices (V, 3) world, triangles (T, 3), reflectance (T, 3), emission (T, 3)) of one object."""
+def _read_mesh(obj, depsgraph, warnings: list[str], cache: dict | None = None) -> _Mesh:
+    """An object's evaluated mesh in world space with its materials' albedo and emission; the
+    triangles of a material with an image texture get that map, sampled through its UV map."""
+    cache = {} if cache is None else cache
     data = mesh_reader.read_object(obj, depsgraph)
-    colors = [material_colors(mat, warnings) for mat in data.materials] or [material_colors(None, warnings)]
-    slot = np.clip(data.material_index, 0, len(colors) - 1)
-    rho = np.array([c[0] for c in colors])[slot]
-    em = np.array([c[1] for c in colors])[slot]
-    return data.vertices, data.triangles, rho, em
+    lights = [_material(mat, warnings, cache) for mat in data.materials] or [_material(None, warnings, cache)]
+    slot = np.clip(data.material_index, 0, len(lights) - 1)
+    rho = np.array([m.reflectance for m in lights])[slot]
+    em = np.array([m.emission for m in lights])[slot]
+    part = _Mesh(data.vertices, data.triangles, rho, em)
+    textured = [k for k, m in enumerate(lights) if m.texture is not None and np.any(slot == k)]
+    if not textured:
+        return part
+    part.image_of = np.full(len(slot), -1, np.int64)
+    part.uv = np.zeros((len(slot), 3, 2))
+    uvs: dict[str, np.ndarray | None] = {}
+    for k in textured:
+        tex = lights[k].texture
+        if tex.uv_map not in uvs:
+            try:
+                uvs[tex.uv_map] = mesh_reader.read_object(obj, depsgraph, tex.uv_map).uv
+            except OvradError:
+                uvs[tex.uv_map] = None
+        uv = uvs[tex.uv_map]
+        if uv is None:
+            which = f"UV map '{tex.uv_map}'" if tex.uv_map else "a UV map"
+            warnings.append(
+                f"'{obj.name}' has no {which} for image '{tex.image}' of material "
+                f"'{data.materials[k].name}'; using the image's mean colour"
+            )
+            continue
+        on = slot == k
+        part.image_of[on] = len(part.textures)
+        part.uv[on] = uv[on]
+        part.textures.append((tex.image, tex.pixels))
+    return part
+
+
+def _material(material, warnings: list[str], cache: dict) -> materials.MaterialLight:
+    """read_material once per material of a scene read (an image's pixels are read once)."""
+    key = None if material is None else material.name
+    if key not in cache:
+        cache[key] = materials.read_material(material, warnings)
+    return cache[key]
+
+
+def _albedo(parts: list[_Mesh]) -> TextureAlbedo | None:
+    """One TextureAlbedo over the triangles of all parts, images shared by name; None if no map."""
+    if not any(p.textures for p in parts):
+        return None
+    images: dict[str, int] = {}
+    pixels = []
+    image_of, uv = [], []
+    for p in parts:
+        n = len(p.triangles)
+        if not p.textures:
+            image_of.append(np.full(n, -1, np.int64))
+            uv.append(np.zeros((n, 3, 2)))
+            continue
+        remap = []
+        for name, px in p.textures:
+            if name not in images:
+                images[name] = len(pixels)
+                pixels.append(px)
+            remap.append(images[name])
+        remap = np.array(remap + [-1], np.int64)  # -1 -> -1 (the last entry)
+        image_of.append(remap[p.image_of])
+        uv.append(p.uv)
+    image_of = np.concatenate(image_of)
+    return TextureAlbedo(
+        images=tuple(pixels),
+        image_of=image_of,
+        uv=np.concatenate(uv),
+        tint=np.ones((len(image_of), 3)),
+    )
 
 
 def default_occluders(context, receivers) -> list:
@@ -141,10 +155,11 @@ def read_scene(depsgraph, receivers, occluders=()) -> SceneMeshes:
         )
     objects, parts = [], []
     n_receivers = 0
+    cache: dict = {}
     for role, group in (("receiver", kept), ("occluder", [o for o in occluders if o.type == "MESH"])):
         for obj in group:
-            part = _read_mesh(obj, depsgraph, warnings)
-            if len(part[1]) == 0:
+            part = _read_mesh(obj, depsgraph, warnings, cache)
+            if len(part.triangles) == 0:
                 if role == "receiver":
                     warnings.append(f"'{obj.name}' has no faces; skipped")
                 continue
@@ -153,15 +168,16 @@ def read_scene(depsgraph, receivers, occluders=()) -> SceneMeshes:
             n_receivers += role == "receiver"
     if n_receivers == 0:
         raise OvradError("the selected meshes have no faces: select at least one mesh with faces")
-    base = np.cumsum([0] + [len(p[0]) for p in parts])[:-1]
+    base = np.cumsum([0] + [len(p.vertices) for p in parts])[:-1]
     surfaces = Surfaces.from_arrays(
-        vertices=np.concatenate([p[0] for p in parts]),
-        triangles=np.concatenate([p[1] + b for p, b in zip(parts, base, strict=True)]),
-        object_index=np.concatenate([np.full(len(p[1]), i) for i, p in enumerate(parts)]),
-        reflectance=np.concatenate([p[2] for p in parts]),
-        emission=np.concatenate([p[3] for p in parts]),
+        vertices=np.concatenate([p.vertices for p in parts]),
+        triangles=np.concatenate([p.triangles + b for p, b in zip(parts, base, strict=True)]),
+        object_index=np.concatenate([np.full(len(p.triangles), i) for i, p in enumerate(parts)]),
+        reflectance=np.concatenate([p.reflectance for p in parts]),
+        emission=np.concatenate([p.emission for p in parts]),
         object_names=[o.name for o in objects],
         receiver=np.arange(len(objects)) < n_receivers,
+        albedo=_albedo(parts),
     )
     # The same material on many objects would repeat its warning.
     return SceneMeshes(surfaces, objects, n_receivers, list(dict.fromkeys(warnings)))
