@@ -68,6 +68,8 @@ def emission(name: str, radiance) -> bpy.types.Material:
 def checker_image(name: str, size: int = 64, cells: int = 8) -> bpy.types.Image:
     """A packed sRGB checker of a warm and a blue colour (8-bit, as a PNG texture would be)."""
     img = bpy.data.images.new(name, size, size, alpha=False)
+    # the colour space first: setting it on a generated image regenerates its pixels (black)
+    img.colorspace_settings.name = "sRGB"
     y, x = np.mgrid[0:size, 0:size] * cells // size
     odd = ((x + y) % 2).astype(bool)
     # sRGB-encoded values (what an 8-bit texture stores); Cycles decodes them to linear.
@@ -75,7 +77,6 @@ def checker_image(name: str, size: int = 64, cells: int = 8) -> bpy.types.Image:
     rgb = np.where(odd[..., None], a, b)
     px = np.concatenate([rgb, np.ones((size, size, 1))], axis=-1).astype(np.float32)
     img.pixels.foreach_set(px.ravel())
-    img.colorspace_settings.name = "sRGB"
     img.pack()
     return img
 

@@ -19,7 +19,8 @@ class MeshData:
     the loop of each triangle corner (same corner order as triangles); polygons (T,) and
     material_index (T,) int64; loop_vertices (L,) int64 the vertex of each loop; uv (T, 3, 2)
     float64 of the chosen UV map or None; materials: the material of each slot (object slots
-    first, else the mesh's), possibly empty.
+    first, else the mesh's), possibly empty; loop_uvs: every UV map's (L, 2) float32 per-loop
+    coordinates by name, when read (read_mesh(all_uvs=True)), and active_uv the active render map.
     """
 
     vertices: np.ndarray
@@ -31,11 +32,21 @@ class MeshData:
     n_polygons: int
     uv: np.ndarray | None = None
     materials: tuple = ()
+    loop_uvs: dict | None = None
+    active_uv: str = ""
 
     @property
     def corners(self) -> np.ndarray:
         """(T, 3, 3) world position of each triangle corner."""
         return self.vertices[self.triangles]
+
+    def triangle_uvs(self, uv_map: str) -> np.ndarray | None:
+        """(T, 3, 2) float64 UVs of each triangle corner in the map named uv_map ('' = the active
+        render map); None if that map was not read or does not exist."""
+        name = uv_map or self.active_uv
+        if not self.loop_uvs or name not in self.loop_uvs:
+            return None
+        return self.loop_uvs[name][self.loops].astype(np.float64)
 
 
 def _get(collection, key: str, per: int, dtype) -> np.ndarray:
@@ -63,11 +74,14 @@ def _uv_layer(mesh, uv_map: str, owner: str):
     return layer
 
 
-def read_mesh(mesh, matrix_world, uv_map: str | None = None, owner: str = "", materials=None) -> MeshData:
+def read_mesh(
+    mesh, matrix_world, uv_map: str | None = None, owner: str = "", materials=None, all_uvs: bool = False
+) -> MeshData:
     """A mesh (already evaluated) placed by matrix_world (4 x 4) into MeshData.
 
     uv_map: None reads no UVs, "" the active render UV map, else that map (OvradError if the
-    mesh has none of that name, naming `owner`). materials default to the mesh's own.
+    mesh has none of that name, naming `owner`). materials default to the mesh's own. all_uvs:
+    also keep every UV map per loop (loop_uvs), for textured materials.
     """
     owner = owner or mesh.name
     co = _get(mesh.vertices, "co", 3, np.float32)
@@ -89,6 +103,13 @@ def read_mesh(mesh, matrix_world, uv_map: str | None = None, owner: str = "", ma
         uv=uv,
         materials=tuple(mesh.materials) if materials is None else tuple(materials),
     )
+    if all_uvs and len(mesh.uv_layers):
+        active = next((lay for lay in mesh.uv_layers if lay.active_render), mesh.uv_layers.active)
+        local = replace(
+            local,
+            loop_uvs={lay.name: _get(lay.data, "uv", 2, np.float32) for lay in mesh.uv_layers},
+            active_uv=(active or mesh.uv_layers[0]).name,
+        )
     return placed(local, matrix_world)
 
 
@@ -106,7 +127,7 @@ def placed(data: MeshData, matrix_world) -> MeshData:
     )
 
 
-def read_evaluated(ev, uv_map: str | None = None, matrix_world=None) -> MeshData:
+def read_evaluated(ev, uv_map: str | None = None, matrix_world=None, all_uvs: bool = False) -> MeshData:
     """The mesh of an evaluated object (a scene object or an instance's), placed by matrix_world
     (default: the object's own; np.eye(4) keeps it in the object's space); its materials are the
     object's material slots (else the mesh's)."""
@@ -114,7 +135,7 @@ def read_evaluated(ev, uv_map: str | None = None, matrix_world=None) -> MeshData
     try:
         slots = [s.material for s in ev.material_slots] or list(mesh.materials)
         matrix = ev.matrix_world if matrix_world is None else matrix_world
-        return read_mesh(mesh, matrix, uv_map, owner=ev.name, materials=slots)
+        return read_mesh(mesh, matrix, uv_map, owner=ev.name, materials=slots, all_uvs=all_uvs)
     finally:
         ev.to_mesh_clear()
 

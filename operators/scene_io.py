@@ -9,12 +9,11 @@ import bpy
 import numpy as np
 
 from ..ovrad_addon import names
+from ..ovrad_addon.albedo import TextureAlbedo
 from ..ovrad_addon.errors import OvradError
 from ..ovrad_addon.lights import Lamp, lamp_area
 from ..ovrad_addon.surfaces import Surfaces
-
-# What a surface gets when its material cannot be read (and what Blender renders without a material).
-DEFAULT_REFLECTANCE = (0.8, 0.8, 0.8)
+from . import materials
 
 
 @dataclass
@@ -33,89 +32,117 @@ class SceneMeshes:
     items: list = field(default_factory=list)
 
 
-def _constant(socket, what: str, material, warnings: list[str]):
-    """A socket's value if nothing is plugged into it, else None (and a warning)."""
-    if socket.is_linked:
-        warnings.append(f"material '{material.name}': {what} is driven by nodes; using grey 0.8 instead")
-        return None
-    return socket.default_value
+@dataclass
+class _Mesh:
+    """One object's arrays for read_scene: vertices (V, 3) world, triangles (T, 3), reflectance
+    (T, 3), emission (T, 3); textures: (image name, pixels) of its albedo maps, image_of (T,) the
+    map of each triangle (-1: none) and uv (T, 3, 2) (None when no triangle has a map)."""
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+    reflectance: np.ndarray
+    emission: np.ndarray
+    textures: list = field(default_factory=list)
+    image_of: np.ndarray | None = None
+    uv: np.ndarray | None = None
 
 
-def _surface_shader(material):
-    tree = material.node_tree
-    if tree is None:
-        return None
-    out = tree.get_output_node("CYCLES") or tree.get_output_node("ALL")
-    if out is None or not out.inputs["Surface"].is_linked:
-        return None
-    node = out.inputs["Surface"].links[0].from_node
-    while node.bl_idname == "NodeReroute" and node.inputs[0].is_linked:
-        node = node.inputs[0].links[0].from_node
-    return node
-
-
-def material_colors(material, warnings: list[str]) -> tuple[np.ndarray, np.ndarray]:
-    """(reflectance (3,), emitted radiance (3,)) of a material, as Cycles would see its diffuse part.
-
-    Read: Principled BSDF (Base Color; Emission Color x Strength), Diffuse BSDF (Color), Emission
-    (Color x Strength, no reflection). Anything else gives grey 0.8 and a warning naming the material.
-    """
-    grey, black = np.array(DEFAULT_REFLECTANCE), np.zeros(3)
-    if material is None:
-        return grey, black
-    legacy = bpy.app.version < (5, 0, 0) and not material.use_nodes
-    if material.node_tree is None or legacy:
-        # A material without nodes renders as a diffuse surface of its viewport colour.
-        return np.array(material.diffuse_color[:3], float), black
-    node = _surface_shader(material)
-    kind = node.bl_idname if node is not None else None
-    rho, em = grey, black
-    if kind == "ShaderNodeBsdfPrincipled":
-        base = _constant(node.inputs["Base Color"], "Base Color", material, warnings)
-        rho = grey if base is None else np.array(base[:3], float)
-        col = _constant(node.inputs["Emission Color"], "Emission Color", material, warnings)
-        strength = _constant(node.inputs["Emission Strength"], "Emission Strength", material, warnings)
-        if col is not None and strength is not None:
-            em = np.array(col[:3], float) * float(strength)
-    elif kind == "ShaderNodeBsdfDiffuse":
-        base = _constant(node.inputs["Color"], "Color", material, warnings)
-        rho = grey if base is None else np.array(base[:3], float)
-    elif kind == "ShaderNodeEmission":
-        rho = np.zeros(3)
-        col = _constant(node.inputs["Color"], "Emission Color", material, warnings)
-        strength = _constant(node.inputs["Strength"], "Emission Strength", material, warnings)
-        if col is not None and strength is not None:
-            em = np.array(col[:3], float) * float(strength)
-    else:
-        what = "no surface shader" if node is None else f"a {node.bl_label} shader"
-        warnings.append(
-            f"material '{material.name}' has {what}; using grey 0.8 (read: Principled, Diffuse, Emission)"
-        )
-    if rho.min() < 0.0 or rho.max() > 1.0:
-        warnings.append(
-            f"material '{material.name}': reflectance {tuple(np.round(rho, 3))} clamped to [0, 1]"
-        )
-        rho = np.clip(rho, 0.0, 1.0)
-    return rho, np.maximum(em, 0.0)
-
-
-def _read_mesh(data, warnings: list[str]):
-    """(reflectance (T, 3), emission (T, 3)) of one mesh (MeshData) from its materials."""
-    colors = []
-    for mat in data.materials or (None,):
-        try:
-            colors.append(material_colors(mat, warnings))
-        except (KeyError, AttributeError, TypeError, ValueError) as e:
-            # A node setup this reader did not foresee: the mesh still takes part, in grey.
+def _read_mesh(data, warnings: list[str], cache: dict) -> _Colors:
+    """Albedo and emission of one mesh (MeshData, in its own space) from its materials; the
+    triangles of a material with an image texture get that map."""
+    lights = [_material(mat, warnings, cache) for mat in data.materials] or [_material(None, warnings, cache)]
+    slot = np.clip(data.material_index, 0, len(lights) - 1)
+    out = _Colors(
+        np.array([m.reflectance for m in lights])[slot], np.array([m.emission for m in lights])[slot]
+    )
+    for k, m in enumerate(lights):
+        if m.texture is None or not np.any(slot == k):
+            continue
+        if data.triangle_uvs(m.texture.uv_map) is None:
+            which = f"a UV map '{m.texture.uv_map}'" if m.texture.uv_map else "a UV map"
+            name = getattr(data.materials[k], "name", "?") if k < len(data.materials) else "?"
             warnings.append(
-                f"material '{getattr(mat, 'name', mat)}' could not be read ({e}); using grey 0.8 "
+                f"a mesh with material '{name}' has no {which} for image '{m.texture.image}'; "
+                "using the image's mean colour"
+            )
+            continue
+        out.textured.append((k, m.texture))
+    out.slot = slot
+    return out
+
+
+@dataclass
+class _Colors:
+    """reflectance (T, 3) and emission (T, 3) of a mesh's triangles; textured: (material slot,
+    MaterialTexture) of its image-textured slots that have UVs; slot (T,) each triangle's slot."""
+
+    reflectance: np.ndarray
+    emission: np.ndarray
+    textured: list = field(default_factory=list)
+    slot: np.ndarray | None = None
+
+
+def _part(data, colors: _Colors) -> _Mesh:
+    """A placed mesh (world space) with its colours and, for textured slots, its UVs."""
+    part = _Mesh(data.vertices, data.triangles, colors.reflectance, colors.emission)
+    if not colors.textured:
+        return part
+    part.image_of = np.full(len(data.triangles), -1, np.int64)
+    part.uv = np.zeros((len(data.triangles), 3, 2))
+    for k, tex in colors.textured:
+        on = colors.slot == k
+        part.image_of[on] = len(part.textures)
+        part.uv[on] = data.triangle_uvs(tex.uv_map)[on]
+        part.textures.append((tex.image, tex.pixels))
+    return part
+
+
+def _material(material, warnings: list[str], cache: dict) -> materials.MaterialLight:
+    """read_material once per material of a scene read (an image's pixels are read once); a node
+    setup the reader did not foresee gives the viewport colour and a warning."""
+    key = None if material is None else material.name
+    if key not in cache:
+        try:
+            cache[key] = materials.read_material(material, warnings)
+        except (KeyError, AttributeError, TypeError, ValueError) as e:
+            warnings.append(
+                f"material '{key}' could not be read ({e}); using its viewport colour "
                 "(use a Principled, Diffuse or Emission shader)"
             )
-            colors.append((np.array(DEFAULT_REFLECTANCE), np.zeros(3)))
-    slot = np.clip(data.material_index, 0, len(colors) - 1)
-    rho = np.array([c[0] for c in colors])[slot]
-    em = np.array([c[1] for c in colors])[slot]
-    return rho, em
+            colour = np.array(material.diffuse_color[:3], float)
+            cache[key] = materials.MaterialLight(np.clip(colour, 0, 1), np.zeros(3))
+    return cache[key]
+
+
+def _albedo(parts: list[_Mesh]) -> TextureAlbedo | None:
+    """One TextureAlbedo over the triangles of all parts, images shared by name; None if no map."""
+    if not any(p.textures for p in parts):
+        return None
+    images: dict[str, int] = {}
+    pixels = []
+    image_of, uv = [], []
+    for p in parts:
+        n = len(p.triangles)
+        if not p.textures:
+            image_of.append(np.full(n, -1, np.int64))
+            uv.append(np.zeros((n, 3, 2)))
+            continue
+        remap = []
+        for name, px in p.textures:
+            if name not in images:
+                images[name] = len(pixels)
+                pixels.append(px)
+            remap.append(images[name])
+        remap = np.array(remap + [-1], np.int64)  # -1 -> -1 (the last entry)
+        image_of.append(remap[p.image_of])
+        uv.append(p.uv)
+    image_of = np.concatenate(image_of)
+    return TextureAlbedo(
+        images=tuple(pixels),
+        image_of=image_of,
+        uv=np.concatenate(uv),
+        tint=np.ones((len(image_of), 3)),
+    )
 
 
 def default_occluders(context, receivers, model=None) -> list:
@@ -163,6 +190,7 @@ def read_scene(depsgraph, receivers, occluders=(), model=None) -> SceneMeshes:
     occluder_items = [item(o) for o in occluders if isinstance(o, scene_model.MeshItem) or o.type == "MESH"]
     items, parts, colors = [], [], {}
     n_receivers = 0
+    cache: dict = {}
     for role, group in (("receiver", [item(o) for o in kept]), ("occluder", occluder_items)):
         for it in group:
             if len(it.local.triangles) == 0:
@@ -170,22 +198,22 @@ def read_scene(depsgraph, receivers, occluders=(), model=None) -> SceneMeshes:
                     warnings.append(f"'{it.name}' has no faces; skipped (give it faces or leave it out)")
                 continue
             if id(it.local) not in colors:  # a shared mesh's materials are read once
-                colors[id(it.local)] = _read_mesh(it.local, warnings)
-            data = it.data()
+                colors[id(it.local)] = _read_mesh(it.local, warnings, cache)
             items.append(it)
-            parts.append((data.vertices, data.triangles, *colors[id(it.local)]))
+            parts.append(_part(it.data(), colors[id(it.local)]))
             n_receivers += role == "receiver"
     if n_receivers == 0:
         raise OvradError("the selected meshes have no faces: select at least one mesh with faces")
-    base = np.cumsum([0] + [len(p[0]) for p in parts])[:-1]
+    base = np.cumsum([0] + [len(p.vertices) for p in parts])[:-1]
     surfaces = Surfaces.from_arrays(
-        vertices=np.concatenate([p[0] for p in parts]),
-        triangles=np.concatenate([p[1] + b for p, b in zip(parts, base, strict=True)]),
-        object_index=np.concatenate([np.full(len(p[1]), i) for i, p in enumerate(parts)]),
-        reflectance=np.concatenate([p[2] for p in parts]),
-        emission=np.concatenate([p[3] for p in parts]),
+        vertices=np.concatenate([p.vertices for p in parts]),
+        triangles=np.concatenate([p.triangles + b for p, b in zip(parts, base, strict=True)]),
+        object_index=np.concatenate([np.full(len(p.triangles), i) for i, p in enumerate(parts)]),
+        reflectance=np.concatenate([p.reflectance for p in parts]),
+        emission=np.concatenate([p.emission for p in parts]),
         object_names=[it.name for it in items],
         receiver=np.arange(len(items)) < n_receivers,
+        albedo=_albedo(parts),
     )
     # The same material on many objects would repeat its warning.
     objects = [it.obj for it in items]

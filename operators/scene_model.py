@@ -82,7 +82,7 @@ class MeshCache:
         slots = tuple(s.material.name if s.material else "" for s in ev.material_slots)
         key = (ev.data.as_pointer(), slots)
         if key not in self.cache:
-            self.cache[key] = mesh_reader.read_evaluated(ev, matrix_world=_IDENTITY)
+            self.cache[key] = mesh_reader.read_evaluated(ev, matrix_world=_IDENTITY, all_uvs=True)
         return self.cache[key]
 
 

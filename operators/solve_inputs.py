@@ -85,8 +85,8 @@ def scene_atlases(scene, warnings: list[str]) -> list[tuple]:
 
 
 def fingerprint(surfaces: Surfaces, atlas: Atlas) -> str:
-    """What the form factors depend on: world geometry, reflectances, receivers and the patches
-    (not emission, which the engine reads at each solve, nor lamps)."""
+    """What the form factors depend on: world geometry, reflectances and albedo textures, receivers
+    and the patches (not emission, which the engine reads at each solve, nor lamps)."""
     h = hashlib.blake2b(digest_size=20)
     arrays = (
         surfaces.vertices,
@@ -108,6 +108,8 @@ def fingerprint(surfaces: Surfaces, atlas: Atlas) -> str:
         h.update(f"{a.dtype.str}{a.shape}".encode())
         h.update(a.tobytes())
     h.update(atlas.beta.encode())
+    if surfaces.albedo is not None:  # textures change the transport's rho and the first shot
+        h.update(b"albedo" + surfaces.albedo.key())
     return h.hexdigest()
 
 

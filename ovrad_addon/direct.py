@@ -27,13 +27,15 @@ _CHUNK_RAYS = 1 << 20
 class DirectLight:
     """The light shot straight to bake points: lamps, the emitting triangles sampled with shadow
     rays (emitters (T,) bool over surfaces.triangles), their emission scale, samples per point;
-    gather_rays: final-gather rays per bake point for the indirect light (gather.py), 0 = off."""
+    gather_rays: final-gather rays per bake point for the indirect light (gather.py), 0 = off;
+    near_field: hits closer than a patch radius computed where they land (gather.NearField)."""
 
     lamps: tuple[Lamp, ...] = ()
     emitters: np.ndarray | None = None
     emission_scale: float = 1.0
     samples: int = 64
     gather_rays: int = 0
+    near_field: bool = False
 
 
 def triangle_normals(surfaces: Surfaces, triangles: np.ndarray) -> np.ndarray:

@@ -159,11 +159,17 @@ def gather_indirect(
         got = np.zeros((len(dirs), 3))
         got[hit] = a @ values
         if near is not None:
-            side = np.where(facing < 0, 1, -1)
-            close = t[hit] < near.reach * (a @ atlas.radii)
-            if np.any(close):
-                got[hit[close]] = _near_values(problem, radiosity, emission, near, hp[close], tri[hit][close],
-                                               side[close], a[close])  # fmt: skip
+            # weight 1 below half the reach, 0 beyond 1.5 reaches, linear between: a bake point moving
+            # away from a wall sees its rays change over from one estimate to the other smoothly
+            reach = near.reach * (a @ atlas.radii)
+            w = np.clip(1.5 - t[hit] / np.maximum(reach, 1e-300), 0.0, 1.0) * (reach > 0)
+            close = np.flatnonzero(w > 0)
+            if len(close):
+                side = np.where(facing[close] < 0, 1, -1)
+                there = _near_values(
+                    problem, radiosity, emission, near, hp[close], tri[hit][close], side, a[close]
+                )
+                got[hit[close]] += w[close, None] * (there - got[hit[close]])
         return sl, got.reshape(-1, rays, 3).mean(axis=1)
 
     for sl, e in threaded(chunk, len(starts), workers):
@@ -184,7 +190,7 @@ def _near_values(
     pts = inside(surfaces, points, triangles)
     H = direct_irradiance(surfaces, index.rays, near.light, pts, normals)[0]
     E = gather_indirect(problem, radiosity, emission, pts, normals, near.rays, None, workers=1)
-    return surfaces.reflectance[triangles] * (H + E) + alpha @ near.extra
+    return surfaces.reflectance_at(triangles, pts) * (H + E) + alpha @ near.extra
 
 
 def inside(surfaces, points: np.ndarray, triangles) -> np.ndarray:

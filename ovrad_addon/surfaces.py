@@ -9,6 +9,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from .albedo import TextureAlbedo, albedo_at, triangle_means
 from .errors import OvradError
 
 
@@ -21,7 +22,10 @@ class Surfaces:
     reflectance: (T, 3) float64 diffuse RGB albedo in [0, 1],
     emission: (T, 3) float64 emitted radiance L_e (W m^-2 sr^-1, Blender's Emission strength x colour),
     object_names: one name per object (for messages),
-    receiver: (n_objects,) bool, whether an object receives patches (False: pure occluder).
+    receiver: (n_objects,) bool, whether an object receives patches (False: pure occluder),
+    albedo: image textures of the triangles that have one (None: none has); their reflectance is
+    then each textured triangle's mean albedo, for code that needs a constant (reflectance_at()
+    gives the albedo at points).
     """
 
     vertices: np.ndarray
@@ -31,6 +35,7 @@ class Surfaces:
     emission: np.ndarray
     object_names: tuple[str, ...]
     receiver: np.ndarray
+    albedo: TextureAlbedo | None = None
 
     @staticmethod
     def from_arrays(
@@ -41,6 +46,7 @@ class Surfaces:
         emission=None,
         object_names=None,
         receiver=None,
+        albedo=None,
     ) -> Surfaces:
         """Validate and normalise input arrays; raise OvradError on unusable input."""
         v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
@@ -67,7 +73,14 @@ class Surfaces:
         if len(names) < n_obj:
             raise OvradError("one object name per object is needed")
         rec = np.ones(len(names), bool) if receiver is None else np.asarray(receiver, bool)
-        return Surfaces(v, t, oi, rho, em, names, rec)
+        if albedo is not None:
+            if len(albedo.image_of) != len(t):
+                raise OvradError("texture albedo must describe every triangle (image_of -1 where none)")
+            if not np.any(albedo.image_of >= 0):
+                albedo = None
+            else:
+                rho = triangle_means(albedo, rho, v[t])
+        return Surfaces(v, t, oi, rho, em, names, rec, albedo)
 
     # Computed once per Surfaces (frozen, so the arrays they derive from never change); callers
     # must not write into them.
@@ -75,6 +88,14 @@ class Surfaces:
     def corners(self) -> np.ndarray:
         """(T, 3, 3) triangle corner positions."""
         return self.vertices[self.triangles]
+
+    def reflectance_at(self, triangles, points) -> np.ndarray:
+        """Albedo (m, 3) at surface points (m, 3) on triangles (m,): the texture where a triangle
+        has one, else its constant reflectance."""
+        tri = np.asarray(triangles, np.int64)
+        if self.albedo is None or not np.any(self.albedo.image_of[tri] >= 0):
+            return self.reflectance[tri]
+        return albedo_at(self.albedo, self.reflectance, self.corners, tri, points)
 
     @cached_property
     def extent(self) -> float:

@@ -175,6 +175,8 @@ def gather_transport(
             progress(done / m)  # on the calling thread: a cancel raised here stops the pool
     G = coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)).tocsc()
     rho = np.zeros((n, 3))
-    np.add.at(rho, pts.owner, index.surfaces.reflectance[pts.triangle] * pts.weight[:, None])
+    # the albedo at the receiver points (a texture's, where there is one): rho_h its mean over D_h
+    albedo = index.surfaces.reflectance_at(pts.triangle, pts.points)
+    np.add.at(rho, pts.owner, albedo * pts.weight[:, None])
     rho /= np.maximum(np.bincount(pts.owner, weights=pts.weight, minlength=n), 1e-300)[:, None]
     return Transport(geometric=G, rho=rho, points=pts, rays=m * rays_per_point)
