@@ -1,4 +1,4 @@
-"""Solve inputs: atlas objects + their source meshes + occluders + lamps, read from bpy into plain
+"""Solve inputs: atlas objects + their source meshes + occluders + lamps + world, read from bpy into plain
 arrays (SolveInputs) before a solve starts, with the fingerprints the caches are keyed by."""
 
 from __future__ import annotations
@@ -14,8 +14,9 @@ from ..ovrad_addon.atlas import Atlas
 from ..ovrad_addon.errors import OvradError
 from ..ovrad_addon.lights import Lamp
 from ..ovrad_addon.pipeline import SolveSettings
+from ..ovrad_addon.sky import Sky
 from ..ovrad_addon.surfaces import Surfaces
-from . import attributes, properties, scene_io
+from . import attributes, properties, scene_io, world
 
 
 @dataclass
@@ -23,7 +24,8 @@ class SolveInputs:
     """Everything the worker needs, read from bpy before it starts.
 
     atlas: all patches, atlas object after atlas object (atlas_names, counts); the first
-    len(atlas_names) objects of surfaces are their source meshes, in the same order.
+    len(atlas_names) objects of surfaces are their source meshes, in the same order; sky: the
+    world's light (None: none).
     """
 
     surfaces: Surfaces
@@ -35,6 +37,7 @@ class SolveInputs:
     sources: list
     key: str
     warnings: list[str] = field(default_factory=list)
+    sky: Sky | None = None
 
     def first_triangle(self, i: int) -> int:
         """Index in surfaces.triangles of receiver i's first triangle."""
@@ -94,26 +97,20 @@ def fingerprint(surfaces: Surfaces, atlas: Atlas) -> str:
     return h.hexdigest()
 
 
-def light_key(surfaces: Surfaces, lamps) -> str:
-    """What direct light depends on besides geometry: the lamps and every triangle's emission."""
+def light_key(surfaces: Surfaces, lamps, sky: Sky | None = None) -> str:
+    """What direct light depends on besides geometry: the lamps, every triangle's emission and
+    the sky."""
     h = hashlib.blake2b(digest_size=20)
     h.update(repr(tuple(lamps)).encode())
     h.update(np.ascontiguousarray(surfaces.emission).tobytes())
+    if sky is not None:
+        h.update(sky.key().encode())
     return h.hexdigest()
 
 
-def _light_warnings(surfaces: Surfaces, lamps, scene, n_receivers: int) -> list[str]:
-    """Light the engine will not see (world, emitters without atlas); raises when nothing emits."""
+def _light_warnings(surfaces: Surfaces, lamps, sky: Sky | None, n_receivers: int) -> list[str]:
+    """Light the engine will not see (emitters without atlas); raises when nothing emits."""
     out = []
-    world = scene_io.read_world(scene)
-    if world is None:
-        out.append("the world is not a constant colour (nodes drive it): its light is ignored")
-    elif world.max() > 0:
-        rgb = ", ".join(f"{v:.3g}" for v in world)
-        out.append(
-            f"world light ({rgb}) is ignored: ovrad lights with lamps and emissive materials only "
-            "(set the world's strength to 0 to compare with Cycles)"
-        )
     receiver = surfaces.object_index < n_receivers
     emits = surfaces.emission.max(axis=1) > 0
     for i in np.unique(surfaces.object_index[emits & ~receiver]):
@@ -122,10 +119,10 @@ def _light_warnings(surfaces: Surfaces, lamps, scene, n_receivers: int) -> list[
             "(generate an atlas on it too)"
         )
     lamp_power = sum(lamp.power * max(lamp.color) for lamp in lamps)
-    if lamp_power <= 0 and not np.any(emits & receiver):
+    if lamp_power <= 0 and not np.any(emits & receiver) and sky is None:
         raise OvradError(
-            "no light: no lamp and no emissive material on a mesh with an atlas "
-            "(add a lamp or an emissive material)"
+            "no light: no lamp, no world light and no emissive material on a mesh with an atlas "
+            "(add a lamp, an emissive material or world light)"
         )
     return out
 
@@ -151,8 +148,9 @@ def read_inputs(context, settings: SolveSettings | None = None, need_light: bool
     atlas = Atlas.concatenate(parts)
     warnings = list(meshes.warnings)
     lamps = scene_io.read_lamps(depsgraph, warnings)
+    sky = world.read_world(scene, warnings)
     if need_light:
-        warnings += _light_warnings(meshes.surfaces, lamps, scene, len(sources))
+        warnings += _light_warnings(meshes.surfaces, lamps, sky, len(sources))
     return SolveInputs(
         surfaces=meshes.surfaces,
         atlas=atlas,
@@ -163,4 +161,5 @@ def read_inputs(context, settings: SolveSettings | None = None, need_light: bool
         sources=sources,
         key=fingerprint(meshes.surfaces, atlas),
         warnings=list(dict.fromkeys(warnings)),
+        sky=sky,
     )

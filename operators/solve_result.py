@@ -75,7 +75,7 @@ def write_radiosity(
     skipped = []
     radiance = np.asarray(radiosity, np.float64) / np.pi
     direct = radiance if first_shot is None else np.asarray(first_shot, np.float64) / np.pi
-    key = light_key(inputs.surfaces, inputs.lamps)
+    key = light_key(inputs.surfaces, inputs.lamps, getattr(inputs, "sky", None))
     start = 0
     for name, count in zip(inputs.atlas_names, inputs.counts, strict=True):
         part = radiance[start : start + count]
