@@ -1,16 +1,34 @@
-"""Check Cycles' equirect layout + Mapping Z rotation sign against ovrad's Sky."""
-import sys, math
-sys.path[:0] = ["/work/wtsky", "/work/wtsky/benchmarks", "/work/wtsky/tests"]
-import bpy, numpy as np
-import real_scenes as rs
-import scenes as bscenes
-from ovrad_addon.sky import Sky, sky_irradiance
-from ovrad_addon.rays import make_rays
+"""Check ovrad's equirectangular layout and a Mapping node's Z turn against Cycles.
 
-bpy.ops.wm.read_factory_settings(use_empty=True)
-scene = bpy.context.scene
-# six separate unit quads of a cube, normals outward
-faces = {
+Six unwelded outward quads of a cube (white), lit only by an equirectangular map that is dark
+except for one bright spot at (u, v); a Mapping (Point) node may turn the lookup by THETA degrees
+about Z. Prints each face's Cycles vertex bake (radiance = E / pi for white) next to ovrad's
+sky_irradiance / pi with Sky.rotation_z = -THETA and +THETA: the layout holds when the lit faces
+agree, and the sign of the turn is the one whose row matches.
+
+    scripts/blender -b -P benchmarks/sky_convention.py -- SAMPLES THETA U V
+    (measured: 64 0 0.45 0.4 and 64 60 0.45 0.4 agree within 1 % with rotation_z = -THETA)
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import tempfile
+from pathlib import Path
+
+import bpy
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT), str(ROOT / "benchmarks")]
+
+import real_scenes as rs  # noqa: E402
+import scenes as bench  # noqa: E402
+from ovrad_addon.rays import make_rays  # noqa: E402
+from ovrad_addon.sky import Sky, sky_irradiance  # noqa: E402
+
+FACES = {
     "+X": [(1, -1, -1), (1, 1, -1), (1, 1, 1), (1, -1, 1)],
     "-X": [(-1, -1, -1), (-1, -1, 1), (-1, 1, 1), (-1, 1, -1)],
     "+Y": [(-1, 1, -1), (-1, 1, 1), (1, 1, 1), (1, 1, -1)],
@@ -18,55 +36,58 @@ faces = {
     "+Z": [(-1, -1, 1), (1, -1, 1), (1, 1, 1), (-1, 1, 1)],
     "-Z": [(-1, -1, -1), (-1, 1, -1), (1, 1, -1), (1, -1, -1)],
 }
-white = rs.diffuse("W", (1.0, 1.0, 1.0))
-objs = []
-for name, q in faces.items():
-    me = bpy.data.meshes.new(name)
-    me.from_pydata([tuple(map(float, p)) for p in q], [], [(0, 1, 2, 3)])
-    me.materials.append(white)
-    o = bpy.data.objects.new(name, me)
-    scene.collection.objects.link(o)
-    objs.append(o)
 W, H = 64, 32
-img = bpy.data.images.new("blob", W, H, alpha=False, float_buffer=True)
-u0, v0 = float(sys.argv[-2]), float(sys.argv[-1])
-uu = (np.arange(W) + 0.5) / W; vv = (np.arange(H) + 0.5) / H
-du = np.minimum(np.abs(uu[None] - u0), 1 - np.abs(uu[None] - u0)); dv = vv[:, None] - v0
-blob = np.exp(-(du**2 + dv**2) / (2 * 0.04**2))
-rgb = 0.02 + 20.0 * blob[..., None] * np.ones(3)
-img.pixels.foreach_set(np.concatenate([rgb, np.ones((H, W, 1))], -1).astype(np.float32).ravel())
-img.pack()
-rs.world(scene, (0, 0, 0), 1.0, image=img)
-tree = scene.world.node_tree
-env = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeTexEnvironment")
-theta = math.radians(float(sys.argv[-3]))
-if theta:
-    mp = tree.nodes.new("ShaderNodeMapping"); tc = tree.nodes.new("ShaderNodeTexCoord")
-    mp.inputs["Rotation"].default_value = (0, 0, theta)
-    tree.links.new(tc.outputs["Generated"], mp.inputs["Vector"]); tree.links.new(mp.outputs["Vector"], env.inputs["Vector"])
-bpy.ops.wm.save_as_mainfile(filepath="/tmp/wtsky/conv.blend", check_existing=False)
-bpy.ops.wm.open_mainfile(filepath="/tmp/wtsky/conv.blend")
-scene = bpy.context.scene
-objs = [scene.objects[n] for n in faces]
-img = bpy.data.images["blob"]
-px = np.array(img.pixels[:], np.float32).reshape(H, W, 4)[..., :3]
-import importlib.util
-spec = importlib.util.spec_from_file_location("bscenes2", "/work/wtsky/benchmarks/scenes.py")
-bs = importlib.util.module_from_spec(spec); spec.loader.exec_module(bs)
-rad, sec = bs.cycles_vertex_bake(objs, int(sys.argv[-4]), keep_world=True)
-cyc = rad.reshape(6, 4, 3).mean(axis=1)[:, 0]
-# ovrad: the six faces' centres (just off them), the cube as occluder
-V = np.array([p for q in faces.values() for p in q], float)
-T = np.array([[4 * k, 4 * k + 1, 4 * k + 2] for k in range(6)] + [[4 * k, 4 * k + 2, 4 * k + 3] for k in range(6)])
-rays = make_rays(V, T)
-N = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
-P = N * 1.0
-for label, rot in (("rot=-theta", -theta), ("rot=+theta", theta)):
-    E = sky_irradiance(Sky(image=px, rotation_z=rot), rays, P, N, 2.0, 8192)[0][:, 0]
-    print("ovrad", label, np.round(E / np.pi, 4))
-print("cycles      ", np.round(cyc, 4), f"{sec:.1f}s")
-s = Sky(image=px)
-# Sky.radiance at the blob's predicted direction
-el, phi = (v0 - 0.5) * np.pi, (0.5 - u0) * 2 * np.pi
-d = np.array([[math.cos(el) * math.cos(phi), math.cos(el) * math.sin(phi), math.sin(el)]])
-print("blob dir", np.round(d, 3), "Sky.radiance there", s.radiance(d)[0, 0], "max", px.max())
+
+
+def spot_map(u0: float, v0: float) -> np.ndarray:
+    uu, vv = (np.arange(W) + 0.5) / W, (np.arange(H) + 0.5) / H
+    du = np.minimum(np.abs(uu[None] - u0), 1 - np.abs(uu[None] - u0))
+    blob = np.exp(-(du**2 + (vv[:, None] - v0) ** 2) / (2 * 0.04**2))
+    return 0.02 + 20.0 * blob[..., None] * np.ones(3)
+
+
+def build(theta: float, u0: float, v0: float, path: Path) -> None:
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    white = rs.diffuse("W", (1.0, 1.0, 1.0))
+    for name, q in FACES.items():
+        me = bpy.data.meshes.new(name)
+        me.from_pydata([tuple(map(float, p)) for p in q], [], [(0, 1, 2, 3)])
+        me.materials.append(white)
+        scene.collection.objects.link(bpy.data.objects.new(name, me))
+    img = bpy.data.images.new("spot", W, H, alpha=False, float_buffer=True)
+    rgb = spot_map(u0, v0)
+    img.pixels.foreach_set(np.concatenate([rgb, np.ones((H, W, 1))], -1).astype(np.float32).ravel())
+    img.pack()
+    rs.world(scene, (0, 0, 0), 1.0, image=img)
+    if theta:
+        tree = scene.world.node_tree
+        env = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeTexEnvironment")
+        mapping, coords = tree.nodes.new("ShaderNodeMapping"), tree.nodes.new("ShaderNodeTexCoord")
+        mapping.inputs["Rotation"].default_value = (0, 0, theta)
+        tree.links.new(coords.outputs["Generated"], mapping.inputs["Vector"])
+        tree.links.new(mapping.outputs["Vector"], env.inputs["Vector"])
+    bpy.ops.wm.save_as_mainfile(filepath=str(path), check_existing=False)
+    bpy.ops.wm.open_mainfile(filepath=str(path))  # the bake operator needs a loaded file's context
+
+
+def main() -> None:
+    samples, degrees, u0, v0 = (float(a) for a in sys.argv[sys.argv.index("--") + 1 :][:4])
+    theta = math.radians(degrees)
+    with tempfile.TemporaryDirectory() as tmp:
+        build(theta, u0, v0, Path(tmp) / "convention.blend")
+        objs = [bpy.context.scene.objects[n] for n in FACES]
+        rad, seconds = bench.cycles_vertex_bake(objs, int(samples), keep_world=True)
+    cycles = rad.reshape(6, 4, 3).mean(axis=1)[:, 0]
+    pixels = np.array(bpy.data.images["spot"].pixels[:], np.float32).reshape(H, W, 4)[..., :3]
+    V = np.array([p for q in FACES.values() for p in q], float)
+    T = np.array([[4 * k, 4 * k + j, 4 * k + j + 1] for k in range(6) for j in (1, 2)])
+    N = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
+    print("faces            ", list(FACES))
+    for label, rot in (("rotation_z=-THETA", -theta), ("rotation_z=+THETA", theta)):
+        E = sky_irradiance(Sky(image=pixels, rotation_z=rot), make_rays(V, T), N, N, 2.0, 8192)[0]
+        print(label, np.round(E[:, 0] / np.pi, 4))
+    print("Cycles           ", np.round(cycles, 4), f"({seconds:.1f} s)")
+
+
+main()
