@@ -437,8 +437,8 @@ def test_a_diverging_solve_stops_with_an_error_and_changes_nothing(furnace, ovra
     real = job_module.solve
     report = ovrad.ovrad_addon.solver.SolveProgress
 
-    def nan_solve(problem, lamps, settings, progress=None, state=None):
-        st = real(problem, lamps, settings, progress=lambda *a: False, state=state)
+    def nan_solve(problem, lamps, settings, progress=None, state=None, sky=None):
+        st = real(problem, lamps, settings, progress=lambda *a: False, state=state, sky=sky)
         st.radiosity = np.full_like(st.radiosity, np.nan)
         if progress is not None:
             assert progress(report(0.5, float("nan"), 0.1, 10, st)) is False  # the guard asks to stop
