@@ -1,11 +1,10 @@
-"""Reading the Blender scene into engine arrays: evaluated meshes in world space, material colours,
-lamps and the world."""
+"""Reading the Blender scene into engine arrays: evaluated meshes in world space, material colours
+and lamps (the world: world.py)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import bpy
 import numpy as np
 
 from ..ovrad_addon import names
@@ -315,27 +314,3 @@ def read_lamps(depsgraph, warnings: list[str] | None = None) -> tuple[Lamp, ...]
         else:
             warnings.append(f"lamp '{obj.name}' of type {kind.lower()} is not supported; skipped")
     return tuple(lamps)
-
-
-def read_world(scene) -> np.ndarray | None:
-    """The world's constant light (3,) = Background colour x strength; zeros without a world.
-
-    None when the world is not a plain Background with nothing linked into it (a sky texture,
-    an HDRI, nodes driving it): then it cannot be read as one colour.
-    """
-    world = scene.world
-    if world is None:
-        return np.zeros(3)
-    legacy = bpy.app.version < (5, 0, 0) and not world.use_nodes
-    if world.node_tree is None or legacy:
-        return np.array(world.color[:3], float)
-    tree = world.node_tree
-    out = tree.get_output_node("CYCLES") or tree.get_output_node("ALL")
-    if out is None or not out.inputs["Surface"].is_linked:
-        return np.zeros(3)
-    node = out.inputs["Surface"].links[0].from_node
-    if node.bl_idname != "ShaderNodeBackground" or any(s.is_linked for s in node.inputs):
-        return None
-    return np.array(node.inputs["Color"].default_value[:3], float) * float(
-        node.inputs["Strength"].default_value
-    )

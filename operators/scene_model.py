@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..ovrad_addon import names
-from . import mesh_reader, scene_io
+from . import mesh_reader, scene_io, world
 
 _IDENTITY = np.eye(4)
 
@@ -40,13 +40,13 @@ class MeshItem:
 class SceneModel:
     """Everything of a scene that takes part in the light (what Cycles renders).
 
-    items: meshes and instances; lamps: engine Lamps; world: constant world light (3,) or None
-    (not a plain colour); warnings: what was read approximately.
+    items: meshes and instances; lamps: engine Lamps; world: the world's light (ovrad_addon.sky.Sky,
+    None: none); warnings: what was read approximately.
     """
 
     items: list[MeshItem]
     lamps: tuple
-    world: np.ndarray | None
+    world: object
     warnings: list[str] = field(default_factory=list)
 
     def item_of(self, obj) -> MeshItem | None:
@@ -129,4 +129,5 @@ def read_model(depsgraph, scene) -> SceneModel:
     """The scene's model (meshes and instances, lamps, world), read once."""
     warnings: list[str] = []
     lamps = scene_io.read_lamps(depsgraph, warnings)
-    return SceneModel(rendered_meshes(depsgraph), lamps, scene_io.read_world(scene), warnings)
+    sky = world.read_world(scene, warnings)
+    return SceneModel(rendered_meshes(depsgraph), lamps, sky, warnings)

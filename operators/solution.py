@@ -86,17 +86,17 @@ def load_solution(context) -> Solution:
 
 def _stored_direct(inputs: SolveInputs, problem: Problem) -> tuple[np.ndarray | None, DirectLight | None]:
     """The first shot stored by the last solve and the direct light to compute at bake points;
-    raises OvradError when the lamps or emission changed since (the split would not match)."""
-    parts, key = [], light_key(inputs.surfaces, inputs.lamps)
+    raises OvradError when the lamps, emission or world changed since (the split would not match)."""
+    parts, key = [], light_key(inputs.surfaces, inputs.lamps, inputs.sky)
     for name, count in zip(inputs.atlas_names, inputs.counts, strict=True):
         obj = bpy.data.objects[name]
         if names.DIRECT not in obj.data.attributes:
             return None, None  # solved by an older version: reconstruct everything from the patches
         if obj.get(names.PROP_LIGHT_KEY) != key:
             raise OvradError(
-                "the lamps or emissive materials changed since the last solve: press Solve again "
+                "the lamps, emissive materials or world changed since the last solve: press Solve again "
                 "before baking"
             )
         parts.append(attributes.read_point_attribute(obj.data, names.DIRECT)[:count, :3])
     first_shot = np.pi * np.concatenate(parts).astype(np.float64)
-    return first_shot, direct_light(problem, inputs.lamps, inputs.settings)
+    return first_shot, direct_light(problem, inputs.lamps, inputs.settings, sky=inputs.sky)

@@ -1,4 +1,4 @@
-"""Solve inputs: atlas objects + their source meshes + occluders + lamps, read from bpy into plain
+"""Solve inputs: atlas objects + their source meshes + occluders + lamps + world, read from bpy into plain
 arrays (SolveInputs) before a solve starts, with the fingerprints the caches are keyed by."""
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from ..ovrad_addon.atlas import Atlas
 from ..ovrad_addon.errors import OvradError
 from ..ovrad_addon.lights import Lamp
 from ..ovrad_addon.pipeline import SolveSettings
+from ..ovrad_addon.sky import Sky
 from ..ovrad_addon.surfaces import Surfaces
 from . import attributes, environment, properties, scene_io, scene_model
 
@@ -25,7 +26,8 @@ class SolveInputs:
     atlas: all patches, atlas object after atlas object (atlas_names, counts); the first
     len(sources) objects of surfaces are the source meshes of the first len(sources) atlas
     objects, in the same order; the rest of surfaces (everything else that renders) is covered
-    by the environment atlas, last in atlas_names when there is one.
+    by the environment atlas, last in atlas_names when there is one. sky: the world's light
+    (None: none).
     """
 
     surfaces: Surfaces
@@ -38,6 +40,7 @@ class SolveInputs:
     key: str
     warnings: list[str] = field(default_factory=list)
     environment: environment.Environment | None = None
+    sky: Sky | None = None
 
     def first_triangle(self, i: int) -> int:
         """Index in surfaces.triangles of receiver i's first triangle."""
@@ -113,26 +116,21 @@ def fingerprint(surfaces: Surfaces, atlas: Atlas) -> str:
     return h.hexdigest()
 
 
-def light_key(surfaces: Surfaces, lamps) -> str:
-    """What direct light depends on besides geometry: the lamps and every triangle's emission."""
+def light_key(surfaces: Surfaces, lamps, sky: Sky | None = None) -> str:
+    """What direct light depends on besides geometry: the lamps, every triangle's emission and
+    the sky."""
     h = hashlib.blake2b(digest_size=20)
     h.update(repr(tuple(lamps)).encode())
     h.update(np.ascontiguousarray(surfaces.emission).tobytes())
+    if sky is not None:
+        h.update(sky.key().encode())
     return h.hexdigest()
 
 
-def _light_warnings(surfaces: Surfaces, lamps, world, receiver: np.ndarray) -> list[str]:
-    """Light the engine will not see (world, emitters without patches); raises when nothing
-    emits. receiver (T,) bool: the triangles that have patches."""
+def _light_warnings(surfaces: Surfaces, lamps, sky: Sky | None, receiver: np.ndarray) -> list[str]:
+    """Light the engine will not see (emitters without patches); raises when nothing emits.
+    receiver (T,) bool: the triangles that have patches."""
     out = []
-    if world is None:
-        out.append("the world is not a constant colour (nodes drive it): its light is ignored")
-    elif world.max() > 0:
-        rgb = ", ".join(f"{v:.3g}" for v in world)
-        out.append(
-            f"world light ({rgb}) is ignored: ovrad lights with lamps and emissive materials only "
-            "(set the world's strength to 0 to compare with Cycles)"
-        )
     emits = surfaces.emission.max(axis=1) > 0
     for i in np.unique(surfaces.object_index[emits & ~receiver]):
         out.append(
@@ -140,10 +138,10 @@ def _light_warnings(surfaces: Surfaces, lamps, world, receiver: np.ndarray) -> l
             "(generate an atlas on it too)"
         )
     lamp_power = sum(lamp.power * max(lamp.color) for lamp in lamps)
-    if lamp_power <= 0 and not np.any(emits & receiver):
+    if lamp_power <= 0 and not np.any(emits & receiver) and sky is None:
         raise OvradError(
-            "no light: no lamp and no emissive material on a mesh with an atlas "
-            "(add a lamp or an emissive material)"
+            "no light: no lamp, no world light and no emissive material on a mesh with an atlas "
+            "(add a lamp, an emissive material or world light)"
         )
     return out
 
@@ -185,10 +183,10 @@ def read_inputs(context, settings: SolveSettings | None = None, need_light: bool
         atlas = Atlas.concatenate([receivers, env.atlas])
         atlas_names.append(env.name)
         counts.append(len(env.atlas))
-    lamps = model.lamps
+    lamps, sky = model.lamps, model.world
     warnings += model.warnings
     if need_light:
-        warnings += _light_warnings(surfaces, lamps, model.world, surfaces.receiver[surfaces.object_index])
+        warnings += _light_warnings(surfaces, lamps, sky, surfaces.receiver[surfaces.object_index])
     return SolveInputs(
         surfaces=surfaces,
         atlas=atlas,
@@ -200,4 +198,5 @@ def read_inputs(context, settings: SolveSettings | None = None, need_light: bool
         key=fingerprint(surfaces, atlas),
         warnings=list(dict.fromkeys(warnings)),
         environment=env,
+        sky=sky,
     )

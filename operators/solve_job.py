@@ -162,7 +162,7 @@ class SolveJob:
                 self._publish(p.state.radiosity)
             return self._update("solving", weight + (1 - weight) * p.fraction, p.unshot, p.rays)
 
-        state = solve(problem, inp.lamps, inp.settings, progress=on_solve)
+        state = solve(problem, inp.lamps, inp.settings, progress=on_solve, sky=getattr(inp, "sky", None))
         if diverged or not np.all(np.isfinite(state.radiosity)):
             raise OvradError(
                 f"the solve diverged (invalid values) with the '{inp.settings.rule}' solver: "

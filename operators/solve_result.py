@@ -77,7 +77,7 @@ def write_radiosity(
     skipped = []
     radiance = np.asarray(radiosity, np.float64) / np.pi
     direct = radiance if first_shot is None else np.asarray(first_shot, np.float64) / np.pi
-    key = light_key(inputs.surfaces, inputs.lamps)
+    key = light_key(inputs.surfaces, inputs.lamps, inputs.sky)
     env = inputs.environment
     pending = env is not None and env.new  # written by finish() only, so a cancel leaves the old one
     start = 0

@@ -1,4 +1,4 @@
-"""Direct light at arbitrary surface points: lamps and small emitters, each with shadow rays.
+"""Direct light at arbitrary surface points: lamps, small emitters and the sky, with shadow rays.
 
 The solver's first shot projects direct light onto the patches, which blurs it to their size:
 a shadow edge or the fast fall-off under a lamp cannot be sharper than a patch. A bake point
@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .lights import Lamp, lamp_irradiance, shadow_origin
+from .sky import Sky, sky_irradiance
 from .surfaces import Surfaces, triangle_geometry
 
 _CHUNK_RAYS = 1 << 20
@@ -28,7 +29,8 @@ class DirectLight:
     """The light shot straight to bake points: lamps, the emitting triangles sampled with shadow
     rays (emitters (T,) bool over surfaces.triangles), their emission scale, samples per point;
     gather_rays: final-gather rays per bake point for the indirect light (gather.py), 0 = off;
-    near_field: hits closer than a patch radius computed where they land (gather.NearField)."""
+    near_field: hits closer than a patch radius computed where they land (gather.NearField);
+    sky: the world's light (sky.py), None = none; sky_samples: its directions (one fixed set)."""
 
     lamps: tuple[Lamp, ...] = ()
     emitters: np.ndarray | None = None
@@ -36,6 +38,8 @@ class DirectLight:
     samples: int = 64
     gather_rays: int = 0
     near_field: bool = False
+    sky: Sky | None = None
+    sky_samples: int = 1024
 
 
 def triangle_normals(surfaces: Surfaces, triangles: np.ndarray) -> np.ndarray:
@@ -156,8 +160,8 @@ def emitter_irradiance(
 def direct_irradiance(
     surfaces: Surfaces, rays, light: DirectLight, points: np.ndarray, normals: np.ndarray
 ) -> tuple[np.ndarray, int]:
-    """Direct irradiance (m, 3) in W/m^2 at points with unit normals: lamps plus the sampled
-    emitters of `light`; and the rays cast."""
+    """Direct irradiance (m, 3) in W/m^2 at points with unit normals: lamps, the sampled
+    emitters and the sky of `light`; and the rays cast."""
     pts = np.asarray(points, np.float64).reshape(-1, 3)
     nrm = np.asarray(normals, np.float64).reshape(-1, 3)
     H = np.zeros((len(pts), 3))
@@ -172,6 +176,10 @@ def direct_irradiance(
         h, n = emitter_irradiance(
             surfaces, rays, light.emitters, pts, nrm, light.samples, light.emission_scale
         )
+        H += h
+        cast += n
+    if light.sky is not None and light.sky.emits:
+        h, n = sky_irradiance(light.sky, rays, pts, nrm, surfaces.extent, light.sky_samples)
         H += h
         cast += n
     return H, cast

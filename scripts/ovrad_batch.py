@@ -83,7 +83,7 @@ OPTIONS = [
         dict(
             choices=("points", "patches"),
             default="points",
-            help="direct light of lamps and small emitters computed at every baked point (sharp), "
+            help="direct light of lamps, small emitters and the sky computed at every baked point (sharp), "
             "or reconstructed from the patches like the rest (the paper's reconstruction)",
         ),
     ),

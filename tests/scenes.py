@@ -217,3 +217,16 @@ def sample_surface(surfaces: Surfaces, count: int, seed: int = 0) -> tuple[np.nd
     u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
     cc = c[tri]
     return cc[:, 0] + u[:, None] * (cc[:, 1] - cc[:, 0]) + v[:, None] * (cc[:, 2] - cc[:, 0]), tri
+
+
+def window_room(w: float = 2.4, d: float = 2.4, h: float = 2.2, window=(0.7, 1.7, 0.8, 1.8)) -> Surfaces:
+    """The real-scenes window room (benchmarks/real_scenes.py _window_room) as arrays: a room
+    [0, w] x [0, d] x [0, h], faces inward, whose south wall (y = 0) has a window
+    (x0, x1, z0, z1); white 0.75."""
+    hx0, hx1, hz0, hz1 = window
+    x0, y0, z0 = 0.0, 0.0, 0.0
+    faces = [f for k, f in enumerate(box_faces((x0, y0, z0), (w, d, h), inward=True)) if k != 2]
+    for a0, a1, b0, b1 in ((0, hx0, 0, h), (hx1, w, 0, h), (hx0, hx1, 0, hz0), (hx0, hx1, hz1, h)):
+        faces.append(quad((a0, 0, b0), (a0, 0, b1), (a1, 0, b1), (a1, 0, b0)))  # normal +Y
+    v, t, o = merge(faces, obj=[0] * len(faces))
+    return Surfaces.from_arrays(v, t, reflectance=np.tile([0.75, 0.75, 0.75], (len(t), 1)))

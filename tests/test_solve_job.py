@@ -63,7 +63,7 @@ def fake_engine(sj, monkeypatch, reports, final=None, error=None):
         assert progress(0.5, "casting transport rays") in (True, False)
         return types.SimpleNamespace(rays=123)
 
-    def solve(problem, lamps, settings, progress=None):
+    def solve(problem, lamps, settings, progress=None, sky=None):
         calls["solve"] += 1
         if error is not None:
             raise error

@@ -1,4 +1,4 @@
-"""Lamps and the world read from Blender in Cycles' units, and every lamp type lighting a plane as the
+"""Lamps read from Blender in Cycles' units, and every lamp type lighting a plane as the
 closed forms of tests/reference/analytic.py say (through solve and an irradiance vertex bake)."""
 
 from __future__ import annotations
@@ -88,22 +88,6 @@ def test_point_radius_and_sun_angle_are_read_for_soft_shadows(ovrad, fresh_scene
     assert by_kind["SPOT"].radius == pytest.approx(0.1)
     assert by_kind["SUN"].angle == pytest.approx(np.radians(10.0)) and by_kind["SUN"].soft
     assert not any("approximated" in w for w in warnings)
-
-
-def test_world_is_read_as_a_constant_colour_or_refused(ovrad, fresh_scene):
-    io = ovrad.operators.scene_io
-    assert np.array_equal(io.read_world(fresh_scene), np.zeros(3))  # no world
-    world = bpy.data.worlds.new("W")
-    fresh_scene.world = world
-    if world.node_tree is None:
-        world.use_nodes = True
-    bg = world.node_tree.nodes["Background"]
-    bg.inputs["Color"].default_value = (0.2, 0.4, 0.6, 1.0)
-    bg.inputs["Strength"].default_value = 0.5
-    np.testing.assert_allclose(io.read_world(fresh_scene), (0.1, 0.2, 0.3), rtol=1e-6)
-    sky = world.node_tree.nodes.new("ShaderNodeTexSky")
-    world.node_tree.links.new(sky.outputs[0], bg.inputs["Color"])
-    assert io.read_world(fresh_scene) is None
 
 
 # --------------------------------------------------------------------------- lighting a plane
@@ -226,7 +210,7 @@ def test_a_bake_after_the_lamps_changed_asks_for_a_new_solve(plane, ovrad):
     before = plane.data.attributes["E"].data[0].color[:]
     lamp.data.energy = 200.0
     bpy.context.view_layer.update()
-    with pytest.raises(RuntimeError, match="lamps or emissive materials changed since the last solve"):
+    with pytest.raises(RuntimeError, match="changed since the last solve: press Solve again"):
         bpy.ops.ovrad.bake_vertex(attribute="E", quantity="IRRADIANCE")
     assert plane.data.attributes["E"].data[0].color[:] == before  # nothing written
     # Solving again makes the bake follow the new power exactly.

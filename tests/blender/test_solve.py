@@ -226,8 +226,9 @@ def test_missing_or_moved_source_mesh_is_refused(furnace, ovrad):
         bpy.ops.ovrad.solve()
 
 
-def test_occluders_cast_shadows_and_world_light_is_reported(ovrad, fresh_scene, capfd):
-    """A sun over a floor, half of it under a card that has no atlas: the card still shadows."""
+def test_occluders_cast_shadows_and_world_light_counts(ovrad, fresh_scene, capfd):
+    """A sun and a dim constant world over a floor, half of it under a card that has no atlas:
+    the card still shadows; the world adds pi L to the open floor."""
     fresh_scene.ovrad.patch_count = 200
     bpy.ops.mesh.primitive_plane_add(size=4.0)
     floor = bpy.context.active_object
@@ -249,11 +250,12 @@ def test_occluders_cast_shadows_and_world_light_is_reported(ovrad, fresh_scene, 
     centers = np.array([v.co for v in atlas_of(floor.name).data.vertices])
     shadowed = (centers[:, 0] > 0.3) & (np.abs(centers[:, 1]) < 0.7)
     lit = centers[:, 0] < -0.7
-    # Lit: rho E / pi, E = 2 W/m^2 (plus a little light bounced off the card's underside).
-    assert np.median(radiance[lit]) == pytest.approx(0.5 * 2.0 / np.pi, rel=0.03)
+    # Lit: rho E / pi, E = 2 W/m^2 from the sun + pi 0.05 from the world (less the bit of sky
+    # the card hides, plus a little light bounced off its underside: both under 1 %).
+    assert np.median(radiance[lit]) == pytest.approx(0.5 * (2.0 + np.pi * 0.05) / np.pi, rel=0.03)
     assert np.all(radiance[shadowed] < 0.2 * np.median(radiance[lit]))
     assert card.name not in [o.get("ovrad_source") for o in bpy.data.objects]
-    assert "world light (0.05, 0.05, 0.05) is ignored" in capfd.readouterr().out
+    assert "world" not in capfd.readouterr().out
 
 
 class Layout:
@@ -435,8 +437,8 @@ def test_a_diverging_solve_stops_with_an_error_and_changes_nothing(furnace, ovra
     real = job_module.solve
     report = ovrad.ovrad_addon.solver.SolveProgress
 
-    def nan_solve(problem, lamps, settings, progress=None, state=None):
-        st = real(problem, lamps, settings, progress=lambda *a: False, state=state)
+    def nan_solve(problem, lamps, settings, progress=None, state=None, sky=None):
+        st = real(problem, lamps, settings, progress=lambda *a: False, state=state, sky=sky)
         st.radiosity = np.full_like(st.radiosity, np.nan)
         if progress is not None:
             assert progress(report(0.5, float("nan"), 0.1, 10, st)) is False  # the guard asks to stop
