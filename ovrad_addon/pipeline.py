@@ -297,10 +297,11 @@ def bake_sides(problem: Problem, triangles) -> np.ndarray:
     return np.where((front >= 0) & occupied[np.maximum(front, 0)], 1, -1).astype(np.int64)
 
 
-def _at_points(problem: Problem, radiosity, points, triangles, sides, first_shot, light):
+def _at_points(problem: Problem, radiosity, points, triangles, sides, first_shot, light, gather_points=None):
     """What both reconstructions need at surface points: triangles (m,), alpha (m, n), the
     coefficients the patches reconstruct, and the direct irradiance (m, 3) computed at the points
-    where the solve's first shot is split off (else None)."""
+    where the solve's first shot is split off (else None). gather_points (m, 3): where the final
+    gather casts its rays from (default: the points), gathered once per distinct position and normal."""
     tri = np.asarray(triangles, np.int64)
     pts = np.asarray(points, np.float64).reshape(-1, 3)
     side = np.broadcast_to(np.asarray(sides), tri.shape)
@@ -318,7 +319,8 @@ def _at_points(problem: Problem, radiosity, points, triangles, sides, first_shot
     if light.gather_rays > 0:
         atlas, index = problem.atlas, problem.index
         own = sampled_emission(atlas, index, light.emitters, light.emission_scale)
-        H = H + gather_unique(problem, radiosity, own, pts, normals, light.gather_rays, tri)
+        at = pts if gather_points is None else np.asarray(gather_points, np.float64).reshape(-1, 3)
+        H = H + gather_unique(problem, radiosity, own, at, normals, light.gather_rays, tri)
         coeffs = patch_emission(problem, light.emission_scale)
         covered = index.sheet_of(tri, side) >= 0
     # --- end of final gather
@@ -333,13 +335,17 @@ def radiance_at(
     sides=1,
     first_shot: np.ndarray | None = None,
     light: DirectLight | None = None,
+    gather_points=None,
 ) -> np.ndarray:
     """Outgoing radiance L = B / pi (m, 3) reconstructed at surface points; 0 where no patch covers.
 
     With the solve's first shot and its direct light, the points get their direct light computed
     where they are (shadow rays) and only the rest of the radiosity from the patches.
+    gather_points: where the final gather starts instead (see _at_points).
     """
-    tri, a, coeffs, H = _at_points(problem, radiosity, points, triangles, sides, first_shot, light)
+    tri, a, coeffs, H = _at_points(
+        problem, radiosity, points, triangles, sides, first_shot, light, gather_points
+    )
     out = reconstruct(a, coeffs)
     if H is not None:
         out += problem.surfaces.reflectance[tri] * H
@@ -354,11 +360,14 @@ def irradiance_at(
     sides=1,
     first_shot: np.ndarray | None = None,
     light: DirectLight | None = None,
+    gather_points=None,
 ) -> np.ndarray:
     """Light arriving at surface points without the surface's albedo: H / pi (m, 3), in the units
     of radiance (a white surface's radiance), from B(M) - E(M) = rho(M) H(M); 0 where rho is 0
     (direct light at the points where it is split off, as in radiance_at)."""
-    tri, a, coeffs, H = _at_points(problem, radiosity, points, triangles, sides, first_shot, light)
+    tri, a, coeffs, H = _at_points(
+        problem, radiosity, points, triangles, sides, first_shot, light, gather_points
+    )
     E = patch_emission(problem, light.emission_scale if light is not None else 1.0)
     reflected = reconstruct(a, coeffs - E)
     rho = problem.surfaces.reflectance[tri]
