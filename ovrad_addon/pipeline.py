@@ -297,11 +297,23 @@ def bake_sides(problem: Problem, triangles) -> np.ndarray:
     return np.where((front >= 0) & occupied[np.maximum(front, 0)], 1, -1).astype(np.int64)
 
 
-def _at_points(problem: Problem, radiosity, points, triangles, sides, first_shot, light, gather_points=None):
+def _at_points(
+    problem: Problem,
+    radiosity,
+    points,
+    triangles,
+    sides,
+    first_shot,
+    light,
+    gather_points=None,
+    indirect=None,
+):
     """What both reconstructions need at surface points: triangles (m,), alpha (m, n), the
     coefficients the patches reconstruct, and the direct irradiance (m, 3) computed at the points
     where the solve's first shot is split off (else None). gather_points (m, 3): where the final
-    gather casts its rays from (default: the points), gathered once per distinct position and normal."""
+    gather casts its rays from (default: the points), gathered once per distinct position and normal;
+    indirect (m, 3): the gathered irradiance itself, computed by the caller (e.g. at fewer points
+    and interpolated), used instead of gathering."""
     tri = np.asarray(triangles, np.int64)
     pts = np.asarray(points, np.float64).reshape(-1, 3)
     side = np.broadcast_to(np.asarray(sides), tri.shape)
@@ -319,8 +331,11 @@ def _at_points(problem: Problem, radiosity, points, triangles, sides, first_shot
     if light.gather_rays > 0:
         atlas, index = problem.atlas, problem.index
         own = sampled_emission(atlas, index, light.emitters, light.emission_scale)
-        at = pts if gather_points is None else np.asarray(gather_points, np.float64).reshape(-1, 3)
-        H = H + gather_unique(problem, radiosity, own, at, normals, light.gather_rays, tri)
+        if indirect is not None:
+            H = H + np.asarray(indirect, np.float64).reshape(-1, 3)
+        else:
+            at = pts if gather_points is None else np.asarray(gather_points, np.float64).reshape(-1, 3)
+            H = H + gather_unique(problem, radiosity, own, at, normals, light.gather_rays, tri)
         coeffs = patch_emission(problem, light.emission_scale)
         covered = index.sheet_of(tri, side) >= 0
     # --- end of final gather
@@ -336,15 +351,16 @@ def radiance_at(
     first_shot: np.ndarray | None = None,
     light: DirectLight | None = None,
     gather_points=None,
+    indirect=None,
 ) -> np.ndarray:
     """Outgoing radiance L = B / pi (m, 3) reconstructed at surface points; 0 where no patch covers.
 
     With the solve's first shot and its direct light, the points get their direct light computed
     where they are (shadow rays) and only the rest of the radiosity from the patches.
-    gather_points: where the final gather starts instead (see _at_points).
+    gather_points, indirect: where the final gather starts instead, or its result (see _at_points).
     """
     tri, a, coeffs, H = _at_points(
-        problem, radiosity, points, triangles, sides, first_shot, light, gather_points
+        problem, radiosity, points, triangles, sides, first_shot, light, gather_points, indirect
     )
     out = reconstruct(a, coeffs)
     if H is not None:
@@ -361,12 +377,13 @@ def irradiance_at(
     first_shot: np.ndarray | None = None,
     light: DirectLight | None = None,
     gather_points=None,
+    indirect=None,
 ) -> np.ndarray:
     """Light arriving at surface points without the surface's albedo: H / pi (m, 3), in the units
     of radiance (a white surface's radiance), from B(M) - E(M) = rho(M) H(M); 0 where rho is 0
     (direct light at the points where it is split off, as in radiance_at)."""
     tri, a, coeffs, H = _at_points(
-        problem, radiosity, points, triangles, sides, first_shot, light, gather_points
+        problem, radiosity, points, triangles, sides, first_shot, light, gather_points, indirect
     )
     E = patch_emission(problem, light.emission_scale if light is not None else 1.0)
     reflected = reconstruct(a, coeffs - E)
