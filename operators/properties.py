@@ -22,7 +22,7 @@ _SOLVE = SolveSettings()
 QUALITY = {
     "DRAFT": dict(patch_count=1000, gather_rays=64, min_rays=1 << 21),
     "MEDIUM": dict(patch_count=_ATLAS.patch_count, gather_rays=_SOLVE.gather_rays, min_rays=_SOLVE.min_rays),
-    "HIGH": dict(patch_count=5000, gather_rays=512, min_rays=1 << 23),
+    "HIGH": dict(patch_count=3000, gather_rays=512, min_rays=1 << 23),
 }
 _LEVELS = (*QUALITY, "CUSTOM")
 
