@@ -260,6 +260,7 @@ def main(argv: list[str]) -> int:
     p.add_argument("--gather", type=int, nargs="+", default=[256], help="final-gather rays (0: off)")
     p.add_argument("--min-rays", type=int, help="transport rays at least (default: SolveSettings')")
     p.add_argument("--quality", nargs="*", help="run these quality levels only (none listed: all)")
+    p.add_argument("--name", help="results file name without .csv (default: speed_vs_error[_<scene>])")
     p.add_argument("--reference", help="npz (default benchmarks/reference/<scene>_4096.npz)")
     a = p.parse_args(argv)
     ref = make_reference.load(
@@ -281,6 +282,8 @@ def main(argv: list[str]) -> int:
     run_cycles(receivers, ref, a.samples, rows)
     run_ovrad(read, ref, a.counts, a.betas, a.solvers, rows, a.gather, a.min_rays)
     out = RESULTS / ("speed_vs_error.csv" if a.scene == "cornell" else f"speed_vs_error_{a.scene}.csv")
+    if a.name:
+        out = RESULTS / f"{a.name}.csv"
     with open(out, "w", newline="") as fh:
         w = csv.DictWriter(fh, FIELDS)
         w.writeheader()
