@@ -73,13 +73,25 @@ class ReceiverBake:
         dist = np.linalg.norm(to_centre, axis=2, keepdims=True)
         step = np.minimum(NUDGE * float(np.median(problem.atlas.radii)), 0.5 * dist)
         pts = (self.points + to_centre * (step / np.maximum(dist, 1e-300))).reshape(-1, 3)
+        # The final gather starts from the corners themselves (it steps into the triangle on its
+        # own), so the corners of one vertex on one face (normal and side) share one gather. Corners
+        # go by vertex, so a vertex's corners fall into one chunk.
+        at = self.points.reshape(-1, 3)
+        order = np.argsort(self.tri_verts.ravel(), kind="stable")
         tris = np.repeat(self.triangles, 3)
         fn = irradiance_at if quantity == "IRRADIANCE" else radiance_at
         out = np.empty((len(pts), 3))
         for s in range(0, len(pts), CHUNK):
-            sl = slice(s, s + CHUNK)
-            out[sl] = fn(
-                problem, solution.radiosity, pts[sl], tris[sl], sides[sl], solution.first_shot, solution.light
+            k = order[s : s + CHUNK]
+            out[k] = fn(
+                problem,
+                solution.radiosity,
+                pts[k],
+                tris[k],
+                sides[k],
+                solution.first_shot,
+                solution.light,
+                gather_points=at[k],
             )
         # Smooth beta rings slightly below 0 next to contact shadows; light is never negative.
         return np.maximum(out, 0.0).reshape(-1, 3, 3)

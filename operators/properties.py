@@ -6,6 +6,7 @@ from __future__ import annotations
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
+from ..ovrad_addon.gather import MAX_RAYS
 from ..ovrad_addon.pipeline import SolveSettings
 from ..ovrad_addon.settings import AtlasSettings, ObjectSettings
 from . import attributes, display
@@ -15,6 +16,35 @@ from . import attributes, display
 _ATLAS = AtlasSettings()
 _OBJECT = ObjectSettings()
 _SOLVE = SolveSettings()
+
+# Quality levels (panel and batch): the settings each sets; MEDIUM is the engine's defaults. Chosen
+# on the Cornell box by benchmarks/speed_vs_error.py --quality (benchmarks/results/quality.csv).
+QUALITY = {
+    "DRAFT": dict(patch_count=1000, gather_rays=64, min_rays=1 << 21),
+    "MEDIUM": dict(patch_count=_ATLAS.patch_count, gather_rays=_SOLVE.gather_rays, min_rays=_SOLVE.min_rays),
+    "HIGH": dict(patch_count=3000, gather_rays=512, min_rays=1 << 23),
+}
+_LEVELS = (*QUALITY, "CUSTOM")
+
+
+def apply_quality(props, level: str) -> None:
+    """Set the settings of a quality level (patch count by count, gather rays, min_rays)."""
+    props.size_mode = "COUNT"
+    for key, value in QUALITY[level].items():
+        setattr(props, key, value)
+
+
+def _get_quality(self) -> int:
+    # The level whose settings the scene has, else Custom: never out of step with them.
+    for i, q in enumerate(QUALITY.values()):
+        if self.size_mode == "COUNT" and all(getattr(self, k) == v for k, v in q.items()):
+            return i
+    return _LEVELS.index("CUSTOM")
+
+
+def _set_quality(self, value: int) -> None:
+    if _LEVELS[value] in QUALITY:
+        apply_quality(self, _LEVELS[value])
 
 
 def _update_display(self, context) -> None:
@@ -26,6 +56,19 @@ def _update_display(self, context) -> None:
 
 class OVRAD_PG_settings(bpy.types.PropertyGroup):
     """Scene-wide atlas settings (bpy.types.Scene.ovrad)."""
+
+    quality: EnumProperty(
+        name="Quality",
+        description="Sets the patch count, gather rays and minimum rays together (each can still be changed)",
+        items=(
+            ("DRAFT", "Draft", "Fewer patches and 64 gather rays: a quick look", 0),
+            ("MEDIUM", "Medium", "The default settings", 1),
+            ("HIGH", "High", "More patches, 512 gather rays and more transport rays: less error, slower", 2),
+            ("CUSTOM", "Custom", "The settings were changed from every level's", 3),
+        ),
+        get=_get_quality,
+        set=_set_quality,
+    )
 
     size_mode: EnumProperty(
         name="Patch Size",
@@ -146,6 +189,18 @@ class OVRAD_PG_settings(bpy.types.PropertyGroup):
         ),
         default=True,
     )
+    gather_rays: IntProperty(
+        name="Gather Rays",
+        description=(
+            "Rays cast from every baked vertex or texel to gather its indirect light from the solved "
+            "patches (sharper near objects, no light leaking under them); 0: the indirect light is "
+            "reconstructed from the patches, as in the paper. Needs Sharp Direct Light"
+        ),
+        default=_SOLVE.gather_rays,
+        min=0,
+        max=MAX_RAYS,
+        soft_max=1024,
+    )
     bake_target: EnumProperty(
         name="Bake To",
         description="Where the solved light is baked",
@@ -264,6 +319,7 @@ def solve_settings(props: OVRAD_PG_settings) -> SolveSettings:
         rule=props.solve_rule,
         rays_per_point=props.rays_per_point,
         min_rays=props.min_rays,
+        gather_rays=props.gather_rays,
     )
 
 

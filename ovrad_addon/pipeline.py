@@ -372,10 +372,23 @@ def bake_sides(problem: Problem, triangles) -> np.ndarray:
     return np.where((front >= 0) & occupied[np.maximum(front, 0)], 1, -1).astype(np.int64)
 
 
-def _at_points(problem: Problem, radiosity, points, triangles, sides, first_shot, light):
+def _at_points(
+    problem: Problem,
+    radiosity,
+    points,
+    triangles,
+    sides,
+    first_shot,
+    light,
+    gather_points=None,
+    indirect=None,
+):
     """What both reconstructions need at surface points: triangles (m,), alpha (m, n), the
     coefficients the patches reconstruct, and the direct irradiance (m, 3) computed at the points
-    where the solve's first shot is split off (else None)."""
+    where the solve's first shot is split off (else None). gather_points (m, 3): where the final
+    gather casts its rays from (default: the points), gathered once per distinct position and normal;
+    indirect (m, 3): the gathered irradiance itself, computed by the caller (e.g. at fewer points
+    and interpolated), used instead of gathering."""
     tri = np.asarray(triangles, np.int64)
     pts = np.asarray(points, np.float64).reshape(-1, 3)
     side = np.broadcast_to(np.asarray(sides), tri.shape)
@@ -394,10 +407,14 @@ def _at_points(problem: Problem, radiosity, points, triangles, sides, first_shot
         atlas, index = problem.atlas, problem.index
         own = sampled_emission(atlas, index, light.emitters, light.emission_scale)
         coeffs = patch_emission(problem, light.emission_scale)
-        near = None
-        if light.near_field:
-            near = NearField(replace(light, samples=min(light.samples, NEAR_LIGHT_SAMPLES)), coeffs - own)
-        H = H + gather_unique(problem, radiosity, own, pts, normals, light.gather_rays, tri, near=near)
+        if indirect is not None:
+            H = H + np.asarray(indirect, np.float64).reshape(-1, 3)
+        else:
+            near = None
+            if light.near_field:
+                near = NearField(replace(light, samples=min(light.samples, NEAR_LIGHT_SAMPLES)), coeffs - own)
+            at = pts if gather_points is None else np.asarray(gather_points, np.float64).reshape(-1, 3)
+            H = H + gather_unique(problem, radiosity, own, at, normals, light.gather_rays, tri, near=near)
         covered = index.sheet_of(tri, side) >= 0
     # --- end of final gather
     return tri, a, coeffs, np.where(covered[:, None], H, 0.0)
@@ -411,15 +428,20 @@ def radiance_at(
     sides=1,
     first_shot: np.ndarray | None = None,
     light: DirectLight | None = None,
+    gather_points=None,
+    indirect=None,
 ) -> np.ndarray:
     """Outgoing radiance L = B / pi (m, 3) reconstructed at surface points; 0 where no patch covers.
 
     With the solve's first shot and its direct light, the points get their direct light computed
     where they are (shadow rays) and only the rest of the radiosity from the patches. The light a
     point reflects is its own albedo (surfaces.reflectance_at: a texture's where there is one)
-    times the irradiance there.
+    times the irradiance there. gather_points, indirect: where the final gather starts instead,
+    or its result (see _at_points).
     """
-    tri, a, coeffs, H = _at_points(problem, radiosity, points, triangles, sides, first_shot, light)
+    tri, a, coeffs, H = _at_points(
+        problem, radiosity, points, triangles, sides, first_shot, light, gather_points, indirect
+    )
     surfaces = problem.surfaces
     albedo = surfaces.reflectance_at(tri, np.asarray(points, np.float64).reshape(-1, 3))
     out = reconstruct(a, coeffs)
@@ -453,12 +475,16 @@ def irradiance_at(
     sides=1,
     first_shot: np.ndarray | None = None,
     light: DirectLight | None = None,
+    gather_points=None,
+    indirect=None,
 ) -> np.ndarray:
     """Light arriving at surface points without the surface's albedo: H / pi (m, 3), in the units
     of radiance (a white surface's radiance), from B(M) - E(M) = rho(M) H(M); 0 where rho is 0
     (direct light at the points where it is split off, as in radiance_at). On a textured triangle
     the patches' reflected light is divided by the triangle's mean albedo, what they hold."""
-    tri, a, coeffs, H = _at_points(problem, radiosity, points, triangles, sides, first_shot, light)
+    tri, a, coeffs, H = _at_points(
+        problem, radiosity, points, triangles, sides, first_shot, light, gather_points, indirect
+    )
     E = patch_emission(problem, light.emission_scale if light is not None else 1.0)
     reflected = reconstruct(a, coeffs - E)
     rho = problem.surfaces.reflectance[tri]

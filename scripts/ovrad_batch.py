@@ -67,6 +67,15 @@ OPTIONS = [
     ("files", "--picture", dict(help="render a PNG of the baked result with Cycles (emission preview)")),
     ("files", "--picture-size", dict(type=int, default=384, help="picture width and height (px)")),
     ("files", "--picture-samples", dict(type=int, default=16, help="Cycles samples for the picture")),
+    (
+        "quality",
+        "--quality",
+        dict(
+            choices=("draft", "medium", "high"),
+            help="patch count, gather rays and min rays together; the options below override them "
+            "(default: the file's settings, which are medium in a new file)",
+        ),
+    ),
     ("atlas", "--receivers", dict(nargs="+", help="mesh names or a comma list (default: all visible)")),
     ("size", "--patch-count", dict(type=int, help="target number of patches over all receivers")),
     ("size", "--patch-size", dict(type=float, help="patch spacing in scene units")),
@@ -87,6 +96,15 @@ OPTIONS = [
             "or reconstructed from the patches like the rest (the paper's reconstruction)",
         ),
     ),
+    (
+        "bake",
+        "--gather-rays",
+        dict(
+            type=int,
+            help="final-gather rays per baked vertex or texel for its indirect light (0: from the "
+            "patches, as in the paper; with --direct points only)",
+        ),
+    ),
     ("bake", "--quantity", dict(choices=("radiance", "irradiance"), default="radiance")),
     ("bake", "--attribute", dict(default="ovrad_radiance", help="vertex: colour attribute name")),
     ("bake", "--domain", dict(choices=("POINT", "CORNER"), default="POINT", help="vertex: attribute domain")),
@@ -99,7 +117,7 @@ OPTIONS = [
 
 def build_parser() -> argparse.ArgumentParser:
     p = Parser(prog=PROG, description=__doc__)
-    groups = {g: p.add_argument_group(g) for g in ("files", "atlas", "solve", "bake")}
+    groups = {g: p.add_argument_group(g) for g in ("files", "quality", "atlas", "solve", "bake")}
     groups["atlas"].description = "default: the file's ovrad settings"
     groups["size"] = groups["atlas"].add_mutually_exclusive_group()
     for group, option, kw in OPTIONS:
@@ -117,6 +135,8 @@ def parse(argv: list[str]) -> argparse.Namespace:
         v = getattr(args, name)
         if v is not None and v < 1:
             raise BatchError(f"--{name.replace('_', '-')} must be at least 1, got {v}")
+    if args.gather_rays is not None and args.gather_rays < 0:
+        raise BatchError(f"--gather-rays must be at least 0, got {args.gather_rays}")
     if args.min_rays is not None and not 0 <= args.min_rays <= 1 << 28:
         raise BatchError(f"--min-rays must be between 0 and {1 << 28}, got {args.min_rays}")
     if args.patch_size is not None and not args.patch_size > 0:
@@ -186,8 +206,16 @@ SOLVE_PROPS = {
 }
 
 
-def apply_settings(props, args) -> None:
-    """The options given, onto the scene's ovrad settings (the rest stay as the file has them)."""
+def apply_settings(props, args, module) -> None:
+    """The options given, onto the scene's ovrad settings (the rest stay as the file has them):
+    --quality first, then the options that override it."""
+    if args.quality:
+        module.operators.properties.apply_quality(props, args.quality.upper())
+    if args.gather_rays is not None:
+        most = module.ovrad_addon.gather.MAX_RAYS
+        if args.gather_rays > most:
+            raise BatchError(f"--gather-rays must be between 0 and {most}, got {args.gather_rays}")
+        props.gather_rays = args.gather_rays
     if args.patch_count is not None:
         props.size_mode, props.patch_count = "COUNT", args.patch_count
     if args.patch_size is not None:
@@ -375,6 +403,7 @@ def make_report(args, module, props, paths, receivers, atlases, stats, images, s
     report |= dict(receivers=[o.name for o in receivers], patches=sum(len(o.data.vertices) for o in atlases))
     report |= {k: stats.get(k) for k in keys} | dict(solver=props.solve_rule, beta=props.beta)
     report |= dict(overlap=round(props.overlap, 6), tolerance=float(f"{props.solve_tolerance:.6g}"))
+    report |= dict(quality=props.quality.lower(), gather_rays=props.gather_rays, min_rays=props.min_rays)
     report |= dict(target=args.target, quantity=args.quantity, images=images, not_baked=skipped)
     report["attribute"] = args.attribute if args.target == "vertex" else None
     return report
@@ -409,7 +438,7 @@ def run(args) -> dict:
         scene = bpy.context.scene
         if args.picture and scene.camera is None:
             raise BatchError("the scene has no camera to render --picture from")
-        apply_settings(scene.ovrad, args)
+        apply_settings(scene.ovrad, args, module)
         receivers = pick_receivers(scene, args.receivers, engine.names)
         atlases = stages.run("generate", generate, scene, receivers, engine.names)
         stats = stages.run("solve", run_solve, module)

@@ -51,6 +51,7 @@ class OVRAD_PT_atlas(_SubPanel, bpy.types.Panel):
     def draw(self, context):
         layout = _split(self.layout)
         props = context.scene.ovrad
+        layout.prop(props, "quality")  # patch count here, gather rays under Bake, min rays under Advanced
         col = layout.column()
         col.prop(props, "size_mode", text="Patch Size")
         col.prop(props, "patch_size" if props.size_mode == "SIZE" else "patch_count")
@@ -129,6 +130,9 @@ def draw_bake(layout, props) -> None:
     col.prop(props, "bake_target")
     col.prop(props, "bake_quantity")
     col.prop(props, "bake_direct")
+    row = col.row()
+    row.active = props.bake_direct  # the gather brings the indirect light to the direct light's points
+    row.prop(props, "gather_rays")
     if props.bake_target == "VERTEX":
         col.prop(props, "bake_attribute")
         col.prop(props, "bake_domain")

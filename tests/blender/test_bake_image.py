@@ -135,6 +135,20 @@ def test_image_matches_the_engine_and_the_cycles_reference_on_the_floor(ovrad, s
     assert rel(got, want) < 0.05, rel(got, want)
 
 
+def test_a_sparse_final_gather_is_interpolated_close_to_the_full_one(ovrad, scene, tmp_path, monkeypatch):
+    # 128^2 texels x 256 rays fit the budget: a gather at every texel. A budget 16 times smaller
+    # gathers at every 4th texel in x and y and interpolates; the direct light stays per texel.
+    module = ovrad.operators.bake_image
+    assert module.gather_step(128 * 128, 256) == 1 and module.gather_step(128 * 128, 256, 1 << 18) == 4
+    assert bake(tmp_path, size=128) == {"FINISHED"}
+    full = pixels(bpy.data.images["Floor_ovrad"])[..., :3].astype(np.float64)
+    monkeypatch.setattr(module, "GATHER_RAY_BUDGET", 1 << 18)
+    assert bake(tmp_path, size=128) == {"FINISHED"}
+    sparse = pixels(bpy.data.images["Floor_ovrad"])[..., :3].astype(np.float64)
+    rel = np.sqrt(np.sum((sparse - full) ** 2) / np.sum(full**2))
+    assert 0 < rel < 0.01, rel
+
+
 def test_default_path_is_next_to_the_blend_file(scene, solved):
     out = solved[0].parent / "ovrad" / "Floor.exr"
     assert bpy.ops.ovrad.bake_image(size=16) == {"FINISHED"}

@@ -63,6 +63,20 @@ def test_point_and_corner_domains_hold_the_furnace_answer(solved):
     assert mesh.color_attributes[mesh.color_attributes.render_color_index].name == "ovrad_radiance"
 
 
+@pytest.mark.parametrize("gather_rays", [0, 64])
+def test_the_furnace_answer_with_the_final_gather_or_from_the_patches(ovrad, solved, gather_rays):
+    # 0: the indirect light reconstructed from the patches (the paper); else gathered once per
+    # vertex and face with this many rays (the scene's default is also a gather).
+    bpy.context.scene.ovrad.gather_rays = gather_rays
+    assert ovrad.operators.solution.load_solution(bpy.context).light.gather_rays == gather_rays
+    mesh = solved.data
+    for domain in ("POINT", "CORNER"):
+        assert bpy.ops.ovrad.bake_vertex(domain=domain, attribute=domain) == {"FINISHED"}
+        np.testing.assert_allclose(colors(mesh, domain)[:, :3], LE / (1 - RHO), rtol=0.02)
+    bpy.ops.ovrad.bake_vertex(attribute="H", quantity="IRRADIANCE")
+    np.testing.assert_allclose(colors(mesh, "H")[:, :3], LE / (1 - RHO), rtol=0.02)
+
+
 def test_irradiance_is_the_light_arriving_without_albedo_or_emission(solved):
     mesh = solved.data
     bpy.ops.ovrad.bake_vertex(attribute="L", quantity="RADIANCE")

@@ -91,6 +91,26 @@ def test_options_reach_atlas_solve_and_bake(ovrad, run_blender, tmp_path):
     assert attrs["Floor"][0].startswith("light:CORNER:FLOAT_COLOR:")
 
 
+def test_quality_sets_its_level_and_the_expert_options_override_it(ovrad, run_blender, tmp_path):
+    report = tmp_path / "r.json"
+    proc = batch(run_blender, CORNELL, "--quality", "draft", *SMALL, "--gather-rays", "8",
+                 "--output", tmp_path / "o.blend", "--report", report)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    r = json.loads(report.read_text())
+    draft = ovrad.operators.properties.QUALITY["DRAFT"]
+    assert (r["gather_rays"], r["min_rays"], r["quality"]) == (8, draft["min_rays"], "custom")
+    assert 150 <= r["patches"] <= 300  # --patch-count 200, not the draft level's
+    proc = batch(run_blender, CORNELL, "--quality", "draft", "--output", tmp_path / "d.blend",
+                 "--report", report)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    r = json.loads(report.read_text())
+    assert (r["gather_rays"], r["min_rays"], r["quality"]) == (
+        draft["gather_rays"],
+        draft["min_rays"],
+        "draft",
+    )
+
+
 def test_the_papers_solver_can_be_chosen(ovrad, run_blender, tmp_path):
     report = tmp_path / "r.json"
     proc = batch(run_blender, CORNELL, *SMALL, "--solver", "paper", "--output", tmp_path / "o.blend",
@@ -165,6 +185,9 @@ def test_in_place_overwrites_only_when_asked(ovrad, run_blender, tmp_path):
         (["--output", "{tmp}/o.blend", "--tolerance", "2"], "--tolerance must be between 0 and 1"),
         (["--output", "{tmp}/o.blend", "--overlap", "9"], "--overlap must be between 1 and 4"),
         (["--output", "{tmp}/o.blend", "--min-rays", "-5"], "--min-rays must be between 0 and"),
+        (["--output", "{tmp}/o.blend", "--gather-rays", "-1"], "--gather-rays must be at least 0"),
+        (["--output", "{tmp}/o.blend", "--gather-rays", "99999"], "--gather-rays must be between 0 and"),
+        (["--output", "{tmp}/o.blend", "--quality", "best"], "argument --quality: invalid choice: 'best'"),
         (["--output", "{tmp}/o.blend", "--in-place"], "--output and --in-place exclude each other"),
         ([], "nothing would be saved: give --output"),
         (["--output", "{tmp}/o.txt"], "--output must be a .blend file"),

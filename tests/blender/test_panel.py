@@ -92,6 +92,23 @@ def test_panel_shows_settings_generate_and_the_active_objects_overrides(ovrad, f
     assert f"{atlas.name}: {n:,} patches, beta smooth" in labels
 
 
+def test_quality_sets_its_levels_settings_and_shows_custom_once_one_is_changed(ovrad, fresh_scene):
+    props = fresh_scene.ovrad
+    assert props.quality == "MEDIUM"  # the defaults are the medium level
+    shown = draw_panel(ovrad)
+    assert ("prop", "quality") in shown and ("prop", "gather_rays") in shown
+    for level, settings in ovrad.operators.properties.QUALITY.items():
+        props.quality = level
+        assert {k: getattr(props, k) for k in settings} == settings and props.quality == level
+    props.gather_rays = 0  # an expert setting overrides the level
+    assert (
+        props.quality == "CUSTOM"
+        and props.patch_count == ovrad.operators.properties.QUALITY["HIGH"]["patch_count"]
+    )
+    props.quality = "CUSTOM"  # changes nothing
+    assert props.gather_rays == 0
+
+
 def test_panel_is_in_the_3d_view_sidebar(ovrad):
     panel = ovrad.ui.panel.OVRAD_PT_main
     assert (panel.bl_space_type, panel.bl_region_type, panel.bl_category) == ("VIEW_3D", "UI", "ovrad")
