@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix
+from scipy.spatial import cKDTree
 
 from .names import SHAPE_SQUARE
 from .parallel import WORKERS, threaded
@@ -250,15 +251,27 @@ def _buried(index, points: np.ndarray, normals: np.ndarray, lift: np.ndarray) ->
 
 
 def neighbour_pairs(atlas) -> tuple[np.ndarray, np.ndarray]:
-    """All (h, i) on the same sheet whose bounding balls intersect, h == i included."""
+    """All (h, i) on the same sheet whose bounding balls intersect, h == i included.
+
+    Searched per sheet (a fourth coordinate keeps sheets apart) with each patch's own reach (its
+    bounding radius plus the largest on its sheet): a search radius of the largest patch anywhere
+    would pair every small patch of a cluster of small pieces with thousands of others.
+    """
     br = atlas.bounding_radii
-    tree = atlas.tree
-    pairs = tree.query_pairs(2.0 * float(br.max()), output_type="ndarray")
-    a, b = pairs[:, 0], pairs[:, 1]
-    d = np.linalg.norm(atlas.centers[a] - atlas.centers[b], axis=1)
-    keep = (d <= br[a] + br[b]) & (atlas.sheet[a] == atlas.sheet[b])
-    a, b = a[keep], b[keep]
     n = len(atlas)
+    sheet = np.asarray(atlas.sheet, np.int64)
+    _, local_sheet = np.unique(sheet, return_inverse=True)
+    largest = np.zeros(local_sheet.max() + 1 if n else 0)
+    np.maximum.at(largest, local_sheet, br)
+    gap = 4.0 * float(br.max()) + 1.0
+    pts = np.column_stack([atlas.centers, local_sheet * gap])
+    found = cKDTree(pts).query_ball_point(pts, r=br + largest[local_sheet], return_sorted=False)
+    counts = np.fromiter((len(f) for f in found), np.int64, n)
+    a = np.repeat(np.arange(n), counts)
+    b = np.fromiter((j for f in found for j in f), np.int64, int(counts.sum()))
+    d = np.linalg.norm(atlas.centers[a] - atlas.centers[b], axis=1)
+    keep = (a < b) & (d <= br[a] + br[b]) & (sheet[a] == sheet[b])
+    a, b = a[keep], b[keep]
     h = np.concatenate([a, b, np.arange(n)])
     i = np.concatenate([b, a, np.arange(n)])
     order = np.lexsort((i, h))
