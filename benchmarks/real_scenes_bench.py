@@ -50,9 +50,8 @@ def run_scene(name: str, folder: Path, extra: list[str]) -> dict:
     real_scenes.build(name, blend)
     proc, seconds = bake(blend, out, report, extra)
     row = {"scene": name, "exit": proc.returncode, "seconds": round(seconds, 2)}
-    warnings = [
-        ln for ln in proc.stdout.splitlines() + proc.stderr.splitlines() if "WARNING" in ln or "warning" in ln
-    ]
+    lines = proc.stdout.splitlines() + proc.stderr.splitlines()
+    warnings = [ln for ln in lines if "warning" in ln.lower()]
     row["warnings"] = len(warnings)
     if proc.returncode != 0:
         row["error"] = (proc.stderr.strip().splitlines() or ["?"])[-1]
