@@ -53,8 +53,9 @@ def srgb_to_linear(c: np.ndarray) -> np.ndarray:
     return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
 
 
-def image_pixels(image) -> np.ndarray | None:
-    """Linear RGB pixels (h, w, 3) float32 of an image, None if it has no pixels (missing file)."""
+def linear_pixels(image) -> np.ndarray | None:
+    """All pixels of an image as linear RGB (h, w, 3) float32, row 0 at the bottom (an 8-bit
+    sRGB image decoded as Cycles decodes it); None if it has no pixels (a missing file)."""
     w, h = image.size[:]
     if w == 0 or h == 0 or not image.has_data and not _load(image):
         return None
@@ -64,12 +65,19 @@ def image_pixels(image) -> np.ndarray | None:
     image.pixels.foreach_get(buf)
     px = buf.reshape(h, w, channels)
     rgb = px[..., :3] if channels >= 3 else np.repeat(px[..., :1], 3, axis=2)
-    step = max(1, -(-max(w, h) // MAX_TEXTURE_SIDE))
-    rgb = rgb[::step, ::step]
-    space = image.colorspace_settings.name
-    if not image.is_float and space not in _LINEAR_SPACES:
+    if not image.is_float and image.colorspace_settings.name not in _LINEAR_SPACES:
         rgb = srgb_to_linear(rgb)
-    return np.ascontiguousarray(np.clip(rgb, 0.0, None), np.float32)
+    return rgb
+
+
+def image_pixels(image) -> np.ndarray | None:
+    """An albedo map's linear RGB pixels (h, w, 3) float32, None if it has no pixels; an image
+    larger than MAX_TEXTURE_SIDE is read at every k-th pixel."""
+    rgb = linear_pixels(image)
+    if rgb is None:
+        return None
+    step = max(1, -(-max(rgb.shape[:2]) // MAX_TEXTURE_SIDE))
+    return np.ascontiguousarray(np.clip(rgb[::step, ::step], 0.0, None), np.float32)
 
 
 def _load(image) -> bool:

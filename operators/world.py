@@ -136,17 +136,10 @@ def sky_pixels(image) -> np.ndarray | None:
     """Linear RGB pixels (h, w, 3) float32 of an equirectangular image, row 0 at the bottom, None
     without pixels; wider than MAX_SKY_WIDTH: averaged down by whole blocks (a small sun keeps its
     power, where picking pixels would miss it)."""
-    w, h = image.size[:]
-    if w == 0 or h == 0 or (not image.has_data and not materials._load(image)):
+    rgb = materials.linear_pixels(image)
+    if rgb is None:
         return None
-    w, h = image.size[:]
-    channels = image.channels
-    buf = np.empty(w * h * channels, np.float32)
-    image.pixels.foreach_get(buf)
-    px = buf.reshape(h, w, channels)
-    rgb = px[..., :3] if channels >= 3 else np.repeat(px[..., :1], 3, axis=2)
-    if not image.is_float and image.colorspace_settings.name not in materials._LINEAR_SPACES:
-        rgb = materials.srgb_to_linear(rgb)
+    h, w = rgb.shape[:2]
     step = -(-w // MAX_SKY_WIDTH)
     if step > 1:
         hh, ww = h // step * step, w // step * step
