@@ -1,4 +1,5 @@
-"""Scene pieces the Blender tests build in code: Principled materials and closed boxes."""
+"""Scene pieces the Blender tests build in code (Principled materials, closed boxes) and small helpers
+they share (selecting objects, reading a colour attribute)."""
 
 from __future__ import annotations
 
@@ -35,3 +36,23 @@ def closed_box(name="Box", cuts=3, mat=None):
     if mat is not None:
         mesh.materials.append(mat)
     return obj
+
+
+def select(*objs):
+    """Select exactly these objects, the first one active."""
+    import bpy
+
+    bpy.context.view_layer.update()  # an object linked from Python is only selectable once the layer syncs
+    for o in bpy.context.view_layer.objects:
+        o.select_set(o in objs)
+    bpy.context.view_layer.objects.active = objs[0] if objs else None
+
+
+def color_values(mesh, name):
+    """A colour attribute's values (n, 4) float32."""
+    import numpy as np
+
+    attr = mesh.attributes[name]
+    out = np.empty(4 * len(attr.data), np.float32)
+    attr.data.foreach_get("color", out)
+    return out.reshape(-1, 4)

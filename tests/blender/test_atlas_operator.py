@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import re
 
+import blender_scenes
 import numpy as np
 import pytest
 
@@ -42,11 +43,7 @@ def add_cube(name="Cube", size=2.0, location=(0.0, 0.0, 0.0), scale=(1.0, 1.0, 1
     return obj
 
 
-def select(*objs):
-    bpy.context.view_layer.update()  # an object linked from Python is only selectable once the layer syncs
-    for o in bpy.context.view_layer.objects:
-        o.select_set(o in objs)
-    bpy.context.view_layer.objects.active = objs[0] if objs else None
+select = blender_scenes.select
 
 
 def atlases(source=None):

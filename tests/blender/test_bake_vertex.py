@@ -24,11 +24,7 @@ def closed_box(name="Box", cuts=3):
     return obj
 
 
-def colors(mesh, name):
-    attr = mesh.attributes[name]
-    out = np.empty(4 * len(attr.data), np.float32)
-    attr.data.foreach_get("color", out)
-    return out.reshape(-1, 4)
+colors = blender_scenes.color_values
 
 
 @pytest.fixture

@@ -38,11 +38,7 @@ def card(bm):
     bmesh.ops.translate(bm, verts=bm.verts[:], vec=(0.0, 0.0, -0.5))
 
 
-def select(*objs):
-    bpy.context.view_layer.update()
-    for o in bpy.context.view_layer.objects:
-        o.select_set(o in objs)
-    bpy.context.view_layer.objects.active = objs[0]
+select = blender_scenes.select
 
 
 def snapshot():

@@ -18,17 +18,11 @@ ROOT = Path(__file__).resolve().parents[2]
 BATCH = ROOT / "scripts" / "ovrad_batch.py"
 
 
-def select(*objs):
-    for o in bpy.context.view_layer.objects:
-        o.select_set(o in objs)
-    bpy.context.view_layer.objects.active = objs[0] if objs else None
+select = blender_scenes.select
 
 
 def colors(mesh, name):
-    attr = mesh.attributes[name]
-    out = np.empty(4 * len(attr.data), np.float32)
-    attr.data.foreach_get("color", out)
-    return out.reshape(-1, 4)[:, :3]
+    return blender_scenes.color_values(mesh, name)[:, :3]
 
 
 def floor(size=4.0, cuts=15):

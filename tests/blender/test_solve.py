@@ -21,18 +21,10 @@ material = blender_scenes.principled
 closed_box = blender_scenes.closed_box
 
 
-def select(*objs):
-    bpy.context.view_layer.update()
-    for o in bpy.context.view_layer.objects:
-        o.select_set(o in objs)
-    bpy.context.view_layer.objects.active = objs[0] if objs else None
+select = blender_scenes.select
 
 
-def colors(mesh, name):
-    attr = mesh.attributes[name]
-    out = np.empty(4 * len(attr.data), np.float32)
-    attr.data.foreach_get("color", out)
-    return out.reshape(-1, 4)
+colors = blender_scenes.color_values
 
 
 def atlas_of(name):
