@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import OvradError
+from .geometry import subtriangle_centroids
 
 
 @dataclass(frozen=True, eq=False)
@@ -112,14 +113,7 @@ def triangle_means(
 ) -> np.ndarray:
     """Each triangle's mean albedo (T, 3) over the centroids of its k^2 sub-triangles (the constant
     reflectance where it has no texture): what emission-free per-triangle code paths use."""
-    i, j = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
-    up, down = (i + j) <= k - 1, (i + j) <= k - 2
-    uv = np.vstack(
-        [
-            np.column_stack([(i[up] + 1 / 3) / k, (j[up] + 1 / 3) / k]),
-            np.column_stack([(i[down] + 2 / 3) / k, (j[down] + 2 / 3) / k]),
-        ]
-    )
+    uv = subtriangle_centroids(k)
     bary = np.column_stack([1 - uv.sum(axis=1), uv])  # (s, 3)
     out = np.asarray(reflectance, np.float64).copy()
     tri = np.flatnonzero(textures.image_of >= 0)

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .geometry import subtriangle_centroids
 from .lights import Lamp, lamp_irradiance, shadow_origin
 from .sky import Sky, sky_irradiance
 from .surfaces import Surfaces, triangle_geometry
@@ -45,16 +46,6 @@ class DirectLight:
 def triangle_normals(surfaces: Surfaces, triangles: np.ndarray) -> np.ndarray:
     """Unit geometric normals (m, 3) of triangles (zero for degenerate ones)."""
     return triangle_geometry(surfaces.corners[np.asarray(triangles, np.int64)])[1]
-
-
-def _subtriangle_centroids(k: int) -> np.ndarray:
-    """Barycentric (u, v) of the centroids of the k^2 congruent triangles a triangle splits into."""
-    i, j = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
-    up = (i + j) <= k - 1
-    down = (i + j) <= k - 2
-    uv_up = np.column_stack([(i[up] + 1 / 3) / k, (j[up] + 1 / 3) / k])
-    uv_down = np.column_stack([(i[down] + 2 / 3) / k, (j[down] + 2 / 3) / k])
-    return np.vstack([uv_up, uv_down])
 
 
 @dataclass(frozen=True)
@@ -100,7 +91,7 @@ def emitter_samples(
     pts, nrm, wts, rad = [], [], [], []
     for k in np.unique(side):
         sel = np.flatnonzero(side == k)
-        uv = _subtriangle_centroids(int(k))
+        uv = subtriangle_centroids(int(k))
         cc = c[sel]
         p = cc[:, None, 0] + uv[None, :, :1] * (cc[:, None, 1] - cc[:, None, 0])
         p = p + uv[None, :, 1:] * (cc[:, None, 2] - cc[:, None, 0])

@@ -39,7 +39,7 @@ from scipy.stats import qmc
 from .direct import DirectLight, direct_irradiance
 from .geometry import tangent_frame
 from .lights import shadow_origin
-from .overlap import alpha_at, patch_average
+from .overlap import alpha_at_hits, patch_average
 from .parallel import WORKERS, threaded
 
 GATHER_SEED = 3  # the fixed scrambling of the pattern: any seed, but always the same
@@ -151,24 +151,21 @@ def gather_indirect(
         )
         dirs = dirs.reshape(-1, 3)
         origins = shadow_origin(np.repeat(pts[sl], rays, axis=0), np.repeat(n, rays, axis=0), dirs, eps)
-        t, tri = index.rays.closest_hit(origins, dirs, np.inf)
-        hit = np.flatnonzero(tri >= 0)
-        hp = origins[hit] + t[hit, None] * dirs[hit]
-        facing = np.einsum("ij,ij->i", dirs[hit], index.charts.normals[tri[hit]])
-        a = alpha_at(atlas, index, hp, tri[hit], np.where(facing < 0, 1, -1))
+        hits = alpha_at_hits(atlas, index, origins, dirs)
+        a, hit = hits.alpha, hits.ray
         got = np.zeros((len(dirs), 3))
         got[hit] = a @ values
         if near is not None:
             # weight 1 below half the reach, 0 beyond 1.5 reaches, linear between: a bake point moving
             # away from a wall sees its rays change over from one estimate to the other smoothly
             reach = near.reach * (a @ atlas.radii)
-            w = np.clip(1.5 - t[hit] / np.maximum(reach, 1e-300), 0.0, 1.0) * (reach > 0)
+            w = np.clip(1.5 - hits.t / np.maximum(reach, 1e-300), 0.0, 1.0) * (reach > 0)
             close = np.flatnonzero(w > 0)
             if len(close):
-                side = np.where(facing[close] < 0, 1, -1)
                 there = _near_values(
-                    problem, radiosity, emission, near, hp[close], tri[hit][close], side, a[close]
-                )
+                    problem, radiosity, emission, near, hits.points[close], hits.triangle[close],
+                    hits.side[close], a[close],
+                )  # fmt: skip
                 got[hit[close]] += w[close, None] * (there - got[hit[close]])
         return sl, got.reshape(-1, rays, 3).mean(axis=1)
 

@@ -352,6 +352,31 @@ def alpha_at(atlas, index, points: np.ndarray, triangle: np.ndarray, side) -> cs
     return alpha_from_pairs(rows, cols, member, b, (len(pts), len(atlas)))
 
 
+@dataclass(frozen=True)
+class RayHits:
+    """Where rays landed on covered-or-not surface: ray (k,) index of each hitting ray, t (k,) its
+    distance, points (k, 3), triangle (k,), side (k,) +-1 the side the ray arrives at, and alpha
+    (k x n sparse) there."""
+
+    ray: np.ndarray
+    t: np.ndarray
+    points: np.ndarray
+    triangle: np.ndarray
+    side: np.ndarray
+    alpha: csr_matrix
+
+
+def alpha_at_hits(atlas, index, origins: np.ndarray, directions: np.ndarray) -> RayHits:
+    """Cast rays (origins, unit directions (m, 3)) and take alpha where they land, on the side they
+    arrive at: the lookup both the transport and the final gather are built on."""
+    t, tri = index.rays.closest_hit(origins, directions, np.inf)
+    hit = np.flatnonzero(tri >= 0)
+    points = origins[hit] + t[hit, None] * directions[hit]
+    tri = tri[hit]
+    side = np.where(np.einsum("ij,ij->i", directions[hit], index.charts.normals[tri]) < 0, 1, -1)
+    return RayHits(hit, t[hit], points, tri, side, alpha_at(atlas, index, points, tri, side))
+
+
 def reconstruct(alpha: csr_matrix, values: np.ndarray) -> np.ndarray:
     """f(M) = sum_i alpha_i(M) f_i for per-patch values (n,) or (n, c); 0 where no patch covers M."""
     return alpha @ np.asarray(values, np.float64)

@@ -20,7 +20,7 @@ import numpy as np
 from scipy.sparse import coo_matrix, csc_matrix
 
 from .geometry import tangent_frame
-from .overlap import alpha_at, patch_quadrature
+from .overlap import alpha_at_hits, patch_quadrature
 from .parallel import WORKERS, threaded
 
 
@@ -155,13 +155,10 @@ def gather_transport(
         nrm = pts.normals[sl]
         dirs = cosine_directions(nrm, rays_per_point, rng).reshape(-1, 3)
         origins = np.repeat(pts.points[sl] + offset * nrm, rays_per_point, axis=0)
-        t, hit_tri = index.rays.closest_hit(origins, dirs, np.inf)
-        hit = hit_tri >= 0
-        hp = origins[hit] + t[hit, None] * dirs[hit]
-        facing = np.einsum("ij,ij->i", dirs[hit], index.charts.normals[hit_tri[hit]])
-        a = alpha_at(atlas, index, hp, hit_tri[hit], np.where(facing < 0, 1, -1)).tocoo()
-        owner = np.repeat(pts.owner[sl], rays_per_point)[hit]
-        ray_w = np.repeat(pts.weight[sl] / rays_per_point, rays_per_point)[hit]
+        hits = alpha_at_hits(atlas, index, origins, dirs)
+        a = hits.alpha.tocoo()
+        owner = np.repeat(pts.owner[sl], rays_per_point)[hits.ray]
+        ray_w = np.repeat(pts.weight[sl] / rays_per_point, rays_per_point)[hits.ray]
         # summed per (h, k) within the chunk: memory follows G, not rays
         part = coo_matrix((a.data * ray_w[a.row], (owner[a.row], a.col)), shape=(n, n)).tocsr().tocoo()
         return part.row, part.col, part.data, sl.stop
