@@ -88,35 +88,39 @@ def _load(image) -> bool:
     return bool(image.has_data)
 
 
-def _upstream(socket):
-    """The node feeding a socket, through Reroutes; None if nothing is linked."""
+def upstream(socket):
+    """(node, output socket) feeding `socket` through Reroutes; (None, None) if nothing is linked."""
     if not socket.is_linked:
-        return None
-    node = socket.links[0].from_node
-    while node.bl_idname == "NodeReroute" and node.inputs[0].is_linked:
-        node = node.inputs[0].links[0].from_node
-    return node
+        return None, None
+    link = socket.links[0]
+    node, out = link.from_node, link.from_socket
+    while node.bl_idname == "NodeReroute":
+        if not node.inputs[0].is_linked:
+            return None, None
+        link = node.inputs[0].links[0]
+        node, out = link.from_node, link.from_socket
+    return node, out
+
+
+def surface_node(tree):
+    """The node feeding the Surface of a node tree's (Cycles) output, None if there is none."""
+    out = tree.get_output_node("CYCLES") or tree.get_output_node("ALL")
+    return None if out is None else upstream(out.inputs["Surface"])[0]
 
 
 def _surface_shader(material):
-    tree = material.node_tree
-    if tree is None:
-        return None
-    out = tree.get_output_node("CYCLES") or tree.get_output_node("ALL")
-    if out is None:
-        return None
-    return _upstream(out.inputs["Surface"])
+    return None if material.node_tree is None else surface_node(material.node_tree)
 
 
 def _uv_of(tex_node) -> str | None:
     """The UV map an Image Texture node samples through: '' for the active render map, a name, or
     None when its Vector input is something else (a Mapping node, generated coordinates)."""
-    src = _upstream(tex_node.inputs["Vector"])
+    src, src_out = upstream(tex_node.inputs["Vector"])
     if src is None:
         return ""
     if src.bl_idname == "ShaderNodeUVMap":
         return src.uv_map
-    if src.bl_idname == "ShaderNodeTexCoord" and tex_node.inputs["Vector"].links[0].from_socket.name == "UV":
+    if src.bl_idname == "ShaderNodeTexCoord" and src_out.name == "UV":
         return ""
     return None
 
@@ -127,7 +131,7 @@ def _colour(
     """(constant (3,), texture) of a colour socket; (None, None) with a warning if neither can be read."""
     if not socket.is_linked:
         return np.array(socket.default_value[:3], float), None
-    node = _upstream(socket)
+    node, _ = upstream(socket)
     if node is not None and node.bl_idname == "ShaderNodeTexImage" and node.image is not None:
         uv = _uv_of(node)
         if uv is not None and node.projection == "FLAT":

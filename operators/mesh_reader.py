@@ -40,13 +40,16 @@ class MeshData:
         """(T, 3, 3) world position of each triangle corner."""
         return self.vertices[self.triangles]
 
+    def has_uv_map(self, uv_map: str) -> bool:
+        """Whether the map named uv_map ('' = the active render map) was read."""
+        return bool(self.loop_uvs) and (uv_map or self.active_uv) in self.loop_uvs
+
     def triangle_uvs(self, uv_map: str) -> np.ndarray | None:
         """(T, 3, 2) float64 UVs of each triangle corner in the map named uv_map ('' = the active
         render map); None if that map was not read or does not exist."""
-        name = uv_map or self.active_uv
-        if not self.loop_uvs or name not in self.loop_uvs:
+        if not self.has_uv_map(uv_map):
             return None
-        return self.loop_uvs[name][self.loops].astype(np.float64)
+        return self.loop_uvs[uv_map or self.active_uv][self.loops].astype(np.float64)
 
 
 def _get(collection, key: str, per: int, dtype) -> np.ndarray:

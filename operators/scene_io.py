@@ -57,7 +57,7 @@ def _read_mesh(data, warnings: list[str], cache: dict) -> _Colors:
     for k, m in enumerate(lights):
         if m.texture is None or not np.any(slot == k):
             continue
-        if data.triangle_uvs(m.texture.uv_map) is None:
+        if not data.has_uv_map(m.texture.uv_map):
             which = f"a UV map '{m.texture.uv_map}'" if m.texture.uv_map else "a UV map"
             name = getattr(data.materials[k], "name", "?") if k < len(data.materials) else "?"
             warnings.append(
@@ -88,10 +88,13 @@ def _part(data, colors: _Colors) -> _Mesh:
         return part
     part.image_of = np.full(len(data.triangles), -1, np.int64)
     part.uv = np.zeros((len(data.triangles), 3, 2))
+    uvs = {}  # per UV map: slots sharing a map read it once
     for k, tex in colors.textured:
         on = colors.slot == k
+        if tex.uv_map not in uvs:
+            uvs[tex.uv_map] = data.triangle_uvs(tex.uv_map)
         part.image_of[on] = len(part.textures)
-        part.uv[on] = data.triangle_uvs(tex.uv_map)[on]
+        part.uv[on] = uvs[tex.uv_map][on]
         part.textures.append((tex.image, tex.pixels))
     return part
 

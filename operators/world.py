@@ -22,20 +22,6 @@ _SHADERS = ("ShaderNodeBackground", "ShaderNodeEmission")
 _COORDINATES = ("Generated", "Object")
 
 
-def _upstream(socket):
-    """(node, output socket) feeding `socket` through Reroutes; (None, None) if nothing is linked."""
-    if not socket.is_linked:
-        return None, None
-    link = socket.links[0]
-    node, out = link.from_node, link.from_socket
-    while node.bl_idname == "NodeReroute":
-        if not node.inputs[0].is_linked:
-            return None, None
-        link = node.inputs[0].links[0]
-        node, out = link.from_node, link.from_socket
-    return node, out
-
-
 def read_world(scene, warnings: list[str] | None = None) -> Sky | None:
     """The world's light as a Sky, None when it gives none (no world, strength 0, black)."""
     warnings = [] if warnings is None else warnings
@@ -45,11 +31,7 @@ def read_world(scene, warnings: list[str] | None = None) -> Sky | None:
     legacy = bpy.app.version < (5, 0, 0) and not world.use_nodes
     if world.node_tree is None or legacy:
         return _emitting(Sky(tuple(float(c) for c in world.color[:3])))
-    tree = world.node_tree
-    out = tree.get_output_node("CYCLES") or tree.get_output_node("ALL")
-    if out is None:
-        return None
-    shader, _ = _upstream(out.inputs["Surface"])
+    shader = materials.surface_node(world.node_tree)
     if shader is None:
         return None  # Cycles renders a world without a surface black
     if shader.bl_idname not in _SHADERS:
@@ -60,7 +42,7 @@ def read_world(scene, warnings: list[str] | None = None) -> Sky | None:
     strength = float(strength_socket.default_value)
     if strength <= 0:
         return None
-    color, _ = _upstream(shader.inputs["Color"])
+    color, _ = materials.upstream(shader.inputs["Color"])
     if color is None:
         rgb = np.array(shader.inputs["Color"].default_value[:3], float) * strength
         return _emitting(Sky(tuple(np.maximum(rgb, 0.0))))
@@ -106,14 +88,14 @@ def _environment(world, node, strength: float, warnings: list[str]) -> Sky | Non
 def _rotation_z(node, world, warnings: list[str]) -> float | None:
     """Radians the map is turned about +Z (Sky.rotation_z) by what drives its Vector input; None if
     that is not a plain turn about Z."""
-    src, src_out = _upstream(node.inputs["Vector"])
+    src, src_out = materials.upstream(node.inputs["Vector"])
     if src is None:
         return 0.0
     if src.bl_idname == "ShaderNodeTexCoord":
         return 0.0 if src_out.name in _COORDINATES else None
     if src.bl_idname != "ShaderNodeMapping":
         return None
-    feed, feed_out = _upstream(src.inputs["Vector"])
+    feed, feed_out = materials.upstream(src.inputs["Vector"])
     if feed is not None and not (feed.bl_idname == "ShaderNodeTexCoord" and feed_out.name in _COORDINATES):
         return None
     socket = {s.name: s for s in src.inputs}
