@@ -260,6 +260,8 @@ def write_environment(scene, atlas: Atlas, key: str) -> bpy.types.Object:
         obj.data = mesh
         if old.users == 0:
             bpy.data.meshes.remove(old)
+    # its patches lie on many objects: which one each, so its stored triangles find their sheets
+    write_point_attribute(mesh, names.OBJECT, atlas.source_object.astype(np.int32), "INT")
     obj.matrix_world = ((1, 0, 0, 0), (0, 1, 0, 0), (0, 0, 1, 0), (0, 0, 0, 1))
     obj[names.PROP_SOURCE] = ""  # an atlas of no one object
     obj[names.PROP_ENVIRONMENT] = key

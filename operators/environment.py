@@ -13,7 +13,7 @@ from ..ovrad_addon import names
 from ..ovrad_addon.atlas import Atlas, build_atlas
 from ..ovrad_addon.errors import OvradError
 from ..ovrad_addon.settings import AtlasSettings, ObjectSettings
-from ..ovrad_addon.surfaces import Surfaces
+from ..ovrad_addon.surfaces import Surfaces, triangle_geometry
 from . import attributes
 
 # Environment patches are this many times the receivers' typical spacing. Their light reaches
@@ -32,7 +32,8 @@ MIN_CAP = 2000
 class Environment:
     """The environment atlas of a solve or bake.
 
-    atlas: its patches (source_object -1) or None when nothing lacks an atlas (or it could not
+    atlas: its patches (source_object: the surfaces object each lies on, -1 when an older stored
+    atlas does not say) or None when nothing lacks an atlas (or it could not
     be built); key: fingerprint of what it covers; new: built now, to be written when the solve
     finishes; name: the atlas object holding it (names.ENVIRONMENT until a new one is written).
     """
@@ -54,9 +55,7 @@ def receiver_spacing(atlas: Atlas) -> float:
 
 def _settings(base: AtlasSettings, surfaces: Surfaces, env: np.ndarray, n_receiver_patches: int, spacing):
     """The scene's atlas settings with a patch size for the environment (see SPACING_FACTOR)."""
-    tri = env[surfaces.object_index]
-    c = surfaces.corners[tri]
-    area = 0.5 * float(np.linalg.norm(np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]), axis=1).sum())
+    area = float(triangle_geometry(surfaces.corners[env[surfaces.object_index]])[0].sum())
     cap = max(PATCHES_PER_RECEIVER_PATCH * n_receiver_patches, MIN_CAP)
     size = max(SPACING_FACTOR * spacing, float(np.sqrt(area / cap)))
     # Per-object density is a receiver's setting: the environment keeps only the sides chosen.
@@ -90,8 +89,12 @@ def plan(
     key = fingerprint(surfaces, env, settings)
     if stored is not None and stored.get(names.PROP_ENVIRONMENT) == key:
         atlas = attributes.read_atlas(stored)
-        atlas = replace(atlas, source_object=np.full(len(atlas), -1, np.int64))
-        return Environment(atlas, key, name=stored.name)
+        # the fingerprint matched: the surfaces, so their object numbers, are those it was built on
+        if names.OBJECT in stored.data.attributes:
+            owner = attributes.read_point_attribute(stored.data, names.OBJECT).astype(np.int64)
+        else:
+            owner = np.full(len(atlas), -1, np.int64)  # located by search (pipeline.attach_sheets)
+        return Environment(replace(atlas, source_object=owner), key, name=stored.name)
     if not build:
         raise OvradError(
             "the meshes without an atlas of their own (they reflect light too) changed since the last "
@@ -102,8 +105,7 @@ def plan(
     except OvradError as e:
         warnings.append(f"the meshes without an atlas only cast shadows in this solve: {e}")
         return Environment(None, key)
-    atlas = attributes.as_stored(replace(atlas, source_object=np.full(len(atlas), -1, np.int64)))
-    return Environment(atlas, key, new=True, name=names.ENVIRONMENT)
+    return Environment(attributes.as_stored(atlas), key, new=True, name=names.ENVIRONMENT)
 
 
 def store(scene, environment: Environment) -> str:

@@ -13,6 +13,7 @@ MIN_COS = "ovrad_min_cos"  # FLOAT, least cosine between patch and surface norma
 SUPPORT_AREA = "ovrad_support_area"  # FLOAT, area A_h of the patch's support on the surface
 TRIANGLE = "ovrad_triangle"  # INT, a triangle of the patch's sheet, counted in its source object's triangles
 SIDE = "ovrad_side"  # INT, side of that triangle the patch lies on: +1 front, -1 back
+OBJECT = "ovrad_object"  # INT, environment atlas only: the surfaces object each patch lies on
 RANDOM = "ovrad_random"  # FLOAT in [0, 1), a stable random value per patch (display)
 RADIOSITY = "ovrad_radiosity"  # FLOAT_COLOR, solved radiance B/pi
 DIRECT = "ovrad_direct"  # FLOAT_COLOR, the first shot's share of it (direct light of lamps and emitters)
