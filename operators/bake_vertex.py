@@ -16,6 +16,8 @@ import bpy
 import numpy as np
 from bpy.props import EnumProperty, StringProperty
 
+from ..ovrad_addon.contact import split_corners
+from ..ovrad_addon.direct import triangle_normals
 from ..ovrad_addon.errors import OvradError
 from ..ovrad_addon.pipeline import bake_sides, irradiance_at, radiance_at
 from . import attributes, mesh_reader, solve
@@ -79,6 +81,11 @@ class ReceiverBake:
         at = self.points.reshape(-1, 3)
         order = np.argsort(self.tri_verts.ravel(), kind="stable")
         tris = np.repeat(self.triangles, 3)
+        # ... except at a vertex on a contact line (a floor vertex where a wall stands on it): there
+        # each corner gathers from inside its own triangle, lit or hidden as its face is.
+        normals = triangle_normals(problem.surfaces, tris) * sides[:, None]
+        split = split_corners(problem.index, self.tri_verts.ravel(), at, pts, normals)
+        at = np.where(split[:, None], pts, at)
         fn = irradiance_at if quantity == "IRRADIANCE" else radiance_at
         out = np.empty((len(pts), 3))
         for s in range(0, len(pts), CHUNK):

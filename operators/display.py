@@ -243,8 +243,9 @@ def _beta_weights(b: _Builder, gin, shape):
 
 
 def _patch_instances(b: _Builder, gin, points, normal, tangent, radius, shape):
-    """A unit disk (radius 1) or unit square (side 2) on each point, turned and scaled to its patch;
-    a vertex's DISPLAY_LOCAL is its coordinate in the patch."""
+    """A unit disk (radius 1), unit square (side 2) or unit ball (a clutter patch, clutter.py) on
+    each point, turned and scaled to its patch; a vertex's DISPLAY_LOCAL is its coordinate in the
+    patch."""
     circle = b.node(
         "GeometryNodeMeshCircle",
         [("Vertices", gin.outputs["Disk Vertices"]), ("Radius", 1.0)],
@@ -253,12 +254,13 @@ def _patch_instances(b: _Builder, gin, points, normal, tangent, radius, shape):
     grid = b.node(
         "GeometryNodeMeshGrid", [("Size X", 2.0), ("Size Y", 2.0), ("Vertices X", 2), ("Vertices Y", 2)]
     )
+    ball = b.node("GeometryNodeMeshIcoSphere", [("Radius", 1.0), ("Subdivisions", 2)])
     position = b.node("GeometryNodeInputPosition").outputs[0]
     rotation = b.node(
         "FunctionNodeAxesToRotation", [(0, normal), (1, tangent)], primary_axis="Z", secondary_axis="X"
     ).outputs[0]
     join = b.node("GeometryNodeJoinGeometry")
-    for kind, mesh in ((names.SHAPE_DISK, circle), (names.SHAPE_SQUARE, grid)):
+    for kind, mesh in ((names.SHAPE_DISK, circle), (names.SHAPE_SQUARE, grid), (names.SHAPE_BALL, ball)):
         unit = b.store(mesh.outputs["Mesh"], DISPLAY_LOCAL, "FLOAT_VECTOR", position)
         inst = b.node(
             "GeometryNodeInstanceOnPoints",

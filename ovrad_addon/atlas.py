@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, field, fields, replace
 from dataclasses import fields as dataclass_fields
 from functools import cached_property
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from . import clutter as clutter_mod
 from . import names
+from .contact import split_at_contacts
 from .errors import OvradError
 from .placement import Placed, place_curved, place_planar, place_planar_small
 from .progress import StageCallback, report_stage
@@ -32,6 +34,8 @@ class Atlas:
     without searching: the sheet is (chart of that triangle, side); triangle is counted among the
     source object's own triangles, so it stays valid when other objects change. None (or -1
     entries) for atlases made before they existed: their sheets are found by locating the patch.
+    anchor (n, 3): the point of its sheet a patch sees its support from (contact.py); None (or NaN
+    rows) where it was not stored: then the rule point nearest the centre.
     """
 
     centers: np.ndarray
@@ -50,6 +54,7 @@ class Atlas:
     beta: str = "smooth"
     triangle: np.ndarray | None = None
     side: np.ndarray | None = None
+    anchor: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.centers)
@@ -92,6 +97,8 @@ class Atlas:
                 names.TRIANGLE: (self.triangle.astype(np.int32), "INT"),
                 names.SIDE: (self.side.astype(np.int32), "INT"),
             }
+        if self.anchor is not None:
+            located[names.ANCHOR] = (self.anchor, "FLOAT_VECTOR")
         return located | {
             names.NORMAL: (self.normals, "FLOAT_VECTOR"),
             names.RADIUS: (self.radii, "FLOAT"),
@@ -119,15 +126,16 @@ class Atlas:
         kw = {}
         for f in fields(Atlas):
             vals = [getattr(a, f.name) for a in atlases]
-            if f.name in ("triangle", "side"):
-                # an atlas without them (made before they existed) is located by search: -1
+            if f.name in ("triangle", "side", "anchor"):
+                # an atlas without them (made before they existed) is located by search (-1), its
+                # anchors found again (NaN)
+                missing = {"anchor": lambda k: np.full((k, 3), np.nan)}.get(
+                    f.name, lambda k: np.full(k, -1, np.int64)
+                )
                 vals = (
                     None
                     if all(v is None for v in vals)
-                    else [
-                        np.full(len(a), -1, np.int64) if v is None else v
-                        for a, v in zip(atlases, vals, strict=True)
-                    ]
+                    else [missing(len(a)) if v is None else v for a, v in zip(atlases, vals, strict=True)]
                 )
                 kw[f.name] = None if vals is None else np.concatenate(vals)
                 continue
@@ -163,6 +171,7 @@ class Atlas:
             beta=beta,
             triangle=get(names.TRIANGLE, dtype=np.int64) if names.TRIANGLE in attributes else None,
             side=get(names.SIDE, dtype=np.int8) if names.SIDE in attributes else None,
+            anchor=get(names.ANCHOR, (-1, 3)) if names.ANCHOR in attributes else None,
         )
 
 
@@ -171,7 +180,9 @@ class SurfaceIndex:
     """Surfaces with their charts, sheets and a ray backend: what patches are placed on.
 
     sheet_table (n_charts, 2): sheet index of each chart's front (column 0) and back (column 1)
-    side, -1 where that side has no patches. sheet_chart, sheet_side (n_sheets,).
+    side, -1 where that side has no patches. sheet_chart, sheet_side (n_sheets,). sheet_clutter
+    (n_sheets,): the sheet holds the clutter charts of one object on one side (clutter.py), and
+    its sheet_chart is one of them. cache: what is derived from the index once (clutter samples).
     """
 
     surfaces: Surfaces
@@ -183,12 +194,40 @@ class SurfaceIndex:
     sheet_chart: np.ndarray
     sheet_side: np.ndarray
     rays: NumpyRays | EmbreeRays
+    sheet_clutter: np.ndarray
+    cache: dict = field(init=False, default_factory=dict, compare=False, repr=False)
 
     def sheet_of(self, triangle: np.ndarray, side: np.ndarray) -> np.ndarray:
         """Sheet index (or -1) of surface points on `triangle` seen from `side` (+1 front, -1 back)."""
         ch = self.charts.chart[triangle]
         out = self.sheet_table[np.maximum(ch, 0), (np.asarray(side) < 0).astype(np.int64)]
         return np.where((ch >= 0) & (triangle >= 0), out, -1)
+
+    def with_clutter(self, clutter: np.ndarray) -> SurfaceIndex:
+        """This index with the `clutter` charts (n_charts,) bool of each object joined into one
+        sheet per side (clutter.py); the index itself when there are none."""
+        if not np.any(clutter):
+            return self
+        table, sheet_chart, sheet_side, sheet_clutter = clutter_mod.sheet_table_with_clutter(
+            self.sheet_table, clutter_mod.chart_objects(self.surfaces, self.charts), np.asarray(clutter, bool)
+        )
+        return replace(
+            self,
+            sheet_table=table,
+            sheet_chart=sheet_chart,
+            sheet_side=sheet_side,
+            sheet_clutter=sheet_clutter,
+        )
+
+    @cached_property
+    def sheet_area(self) -> np.ndarray:
+        """(n_sheets,) area of each sheet (a clutter sheet: of all its charts)."""
+        ch = self.charts
+        ok = ch.chart >= 0
+        chart_area = np.bincount(ch.chart[ok], weights=ch.areas[ok], minlength=ch.count)
+        has = self.sheet_table >= 0
+        rows = np.nonzero(has)[0]
+        return np.bincount(self.sheet_table[has], weights=chart_area[rows], minlength=len(self.sheet_chart))
 
 
 def _chart_planarity(surfaces: Surfaces, charts: Charts) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -259,23 +298,21 @@ def _back_side_sees_something(surfaces: Surfaces, charts: Charts, rays, chart_id
     return np.bincount(np.repeat(owner, per_point), weights=hit, minlength=len(chart_ids)) > 0
 
 
-def _chart_objects(surfaces: Surfaces, charts: Charts) -> np.ndarray:
-    """(n_charts,) object index of each chart."""
-    chart_obj = np.zeros(charts.count, np.int64)
-    ok = charts.chart >= 0
-    chart_obj[charts.chart[ok]] = surfaces.object_index[ok]
-    return chart_obj
+def index_surfaces(
+    surfaces: Surfaces, settings: AtlasSettings, backend: str = "auto", clutter: np.ndarray | None = None
+) -> SurfaceIndex:
+    """Find charts, decide which sides get patches (see ObjectSettings.sides), build the ray backend.
 
-
-def index_surfaces(surfaces: Surfaces, settings: AtlasSettings, backend: str = "auto") -> SurfaceIndex:
-    """Find charts, decide which sides get patches (see ObjectSettings.sides), build the ray backend."""
+    clutter (n_charts,) bool: the charts that join their object's clutter sheets (clutter.py);
+    an empty array: none; None: the charts too small for patches of their own at the settings'
+    spacing."""
     charts = find_charts(surfaces, settings.crease_angle)
     if charts.count == 0:
         raise OvradError("every face has zero area: nothing to cover with patches")
     rays = make_rays(surfaces.vertices, surfaces.triangles, backend)
     planar, flat, deviation = _chart_planarity(surfaces, charts)
     nc = charts.count
-    chart_obj = _chart_objects(surfaces, charts)
+    chart_obj = clutter_mod.chart_objects(surfaces, charts)
     front = surfaces.receiver[chart_obj].copy()
     modes = np.array([settings.object_settings(o).sides for o in range(len(surfaces.object_names))])
     mode = modes[chart_obj] if nc else np.zeros(0, str)
@@ -288,7 +325,7 @@ def index_surfaces(surfaces: Surfaces, settings: AtlasSettings, backend: str = "
     sides = np.stack([front, back], 1)
     table[sides] = np.arange(int(sides.sum()))
     sheet_chart, sheet_col = np.nonzero(sides)
-    return SurfaceIndex(
+    index = SurfaceIndex(
         surfaces=surfaces,
         charts=charts,
         planar=planar,
@@ -298,19 +335,33 @@ def index_surfaces(surfaces: Surfaces, settings: AtlasSettings, backend: str = "
         sheet_chart=sheet_chart,
         sheet_side=np.where(sheet_col == 0, 1, -1),
         rays=rays,
+        sheet_clutter=np.zeros(len(sheet_chart), bool),
     )
+    if clutter is None:
+        clutter = _small_charts(index, settings)
+    return index.with_clutter(clutter)
+
+
+def _small_charts(index: SurfaceIndex, settings: AtlasSettings) -> np.ndarray:
+    """(n_charts,) bool: receiving charts too small for patches of their own at the spacing the
+    settings give (clutter.py)."""
+    if len(index.sheet_chart) == 0:
+        return np.zeros(index.charts.count, bool)
+    spacing = np.full(index.charts.count, np.inf)
+    np.minimum.at(spacing, index.sheet_chart, _sheet_spacing(index, settings))
+    ch = index.charts
+    ok = ch.chart >= 0
+    chart_area = np.bincount(ch.chart[ok], weights=ch.areas[ok], minlength=ch.count)
+    return clutter_mod.small_charts(chart_area, spacing) & np.isfinite(spacing)
 
 
 def _sheet_spacing(index: SurfaceIndex, settings: AtlasSettings) -> np.ndarray:
     """Grid spacing per sheet: from patch_size, or chosen so the whole scene gets about patch_count."""
     s = index.surfaces
-    ch = index.charts
-    ok = ch.chart >= 0
-    chart_area = np.bincount(ch.chart[ok], weights=ch.areas[ok], minlength=ch.count)
-    chart_obj = _chart_objects(s, ch)
+    chart_obj = clutter_mod.chart_objects(s, index.charts)
     per_object = np.array([settings.object_settings(o).density for o in range(len(s.object_names))], float)
     density = per_object[chart_obj][index.sheet_chart]
-    area = chart_area[index.sheet_chart]
+    area = index.sheet_area
     if settings.patch_size is not None:
         base = settings.patch_size
     else:
@@ -331,8 +382,14 @@ def _place_all(index: SurfaceIndex, settings: AtlasSettings, spacing: np.ndarray
     start = end - n_per
     out: list[Placed | None] = [None] * len(index.sheet_chart)
     total = 0
+    # Clutter sheets: ball patches on a grid (clutter.py).
+    for k, fields_k in clutter_mod.place_balls(index, spacing, settings.overlap).items():
+        out[k] = Placed(**fields_k)
+        total += len(fields_k["radii"])
     # Small planar sheets (a tiny cube's face) all at once: most fit in one grid cell.
-    small = np.flatnonzero(index.flat[index.sheet_chart] & (n_per[index.sheet_chart] <= SMALL_SHEET))
+    small = np.flatnonzero(
+        index.flat[index.sheet_chart] & (n_per[index.sheet_chart] <= SMALL_SHEET) & ~index.sheet_clutter
+    )
     if len(small):
         c = index.sheet_chart[small]
         side = index.sheet_side[small]
@@ -348,10 +405,7 @@ def _place_all(index: SurfaceIndex, settings: AtlasSettings, spacing: np.ndarray
         )
         p.thickness = p.thickness + 2.0 * index.deviation[c[got]]
         p.triangle = tri[p.triangle]
-        empty = Placed(
-            *(np.zeros((0, 3)) for _ in range(3)), *(np.zeros(0) for _ in range(4)), np.zeros(0, np.int64)
-        )
-        empty.shapes = empty.shapes.astype(np.int8)
+        empty = _empty_placed()
         for k in small[done]:
             out[k] = empty
         for j, k in enumerate(small[got]):
@@ -359,6 +413,9 @@ def _place_all(index: SurfaceIndex, settings: AtlasSettings, spacing: np.ndarray
         total += len(got)
     for k, (c, side) in enumerate(zip(index.sheet_chart, index.sheet_side, strict=True)):
         if out[k] is not None:
+            continue
+        if index.sheet_clutter[k]:  # a clutter sheet no sample landed on (all of it buried)
+            out[k] = _empty_placed()
             continue
         tri = by_chart[start[c] : end[c]]
         corners = s.corners[tri]
@@ -376,6 +433,13 @@ def _place_all(index: SurfaceIndex, settings: AtlasSettings, spacing: np.ndarray
         if total > settings.max_patches:
             break
     return [p for p in out if p is not None], total
+
+
+def _empty_placed() -> Placed:
+    vectors = (np.zeros((0, 3)) for _ in range(3))
+    empty = Placed(*vectors, *(np.zeros(0) for _ in range(4)), np.zeros(0, np.int64))
+    empty.shapes = empty.shapes.astype(np.int8)
+    return empty
 
 
 SMALL_SHEET = 4  # planar sheets of at most this many triangles are placed together
@@ -413,11 +477,7 @@ def build_atlas(
     if len(index.sheet_chart) == 0:
         raise OvradError("no receiving surface: mark at least one object as a receiver")
     spacing = _sheet_spacing(index, settings)
-    ok = index.charts.chart >= 0
-    chart_area = np.bincount(
-        index.charts.chart[ok], weights=index.charts.areas[ok], minlength=index.charts.count
-    )
-    estimate = int(round(float(np.sum(chart_area[index.sheet_chart] / spacing**2))))
+    estimate = int(round(float(np.sum(index.sheet_area / spacing**2))))
     if estimate > settings.max_patches:  # refuse before allocating anything of that size
         raise _too_many(estimate, settings)
     report_stage(progress, 0.1, "placing patches")
@@ -429,7 +489,7 @@ def build_atlas(
     if total > settings.max_patches:
         raise _too_many(total, settings)
     sheet = np.concatenate([np.full(len(p.radii), k) for k, p in enumerate(placed)])
-    chart_obj = _chart_objects(surfaces, index.charts)
+    chart_obj = clutter_mod.chart_objects(surfaces, index.charts)
     triangle = np.concatenate([p.triangle for p in placed])
     n = total
     rng = np.random.default_rng(7)
@@ -451,6 +511,9 @@ def build_atlas(
         triangle=surfaces.local_triangle[triangle],
         side=index.sheet_side[sheet].astype(np.int8),
     )
+    # Patches cut by contact lines (a partition standing on the floor): one per side (contact.py).
+    atlas = split_at_contacts(atlas, index)
+    n = len(atlas)
     report_stage(progress, 0.2, f"integrating overlaps of {n} patches")
     C, support = overlap_matrix(
         atlas,

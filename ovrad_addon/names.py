@@ -3,7 +3,7 @@
 # POINT attributes on an atlas object (one point per patch).
 NORMAL = "ovrad_normal"  # FLOAT_VECTOR, unit normal of the patch plane
 RADIUS = "ovrad_radius"  # FLOAT, disk radius or half the side of a square
-SHAPE = "ovrad_shape"  # INT, 0 disk, 1 square
+SHAPE = "ovrad_shape"  # INT, 0 disk, 1 square, 2 ball (clutter.py)
 TANGENT = "ovrad_tangent"  # FLOAT_VECTOR, first in-plane axis (a square's side direction)
 AREA = "ovrad_area"  # FLOAT, effective area c_kk = integral of alpha_k over the surface
 OVERLAP = "ovrad_overlap"  # INT, how many other patches overlap this one
@@ -12,6 +12,7 @@ THICKNESS = "ovrad_thickness"  # FLOAT, tolerated distance from the patch plane
 MIN_COS = "ovrad_min_cos"  # FLOAT, least cosine between patch and surface normals
 SUPPORT_AREA = "ovrad_support_area"  # FLOAT, area A_h of the patch's support on the surface
 TRIANGLE = "ovrad_triangle"  # INT, a triangle of the patch's sheet, counted in its source object's triangles
+ANCHOR = "ovrad_anchor"  # FLOAT_VECTOR, the point on the sheet the patch sees its support from (contact.py)
 SIDE = "ovrad_side"  # INT, side of that triangle the patch lies on: +1 front, -1 back
 OBJECT = "ovrad_object"  # INT, environment atlas only: the surfaces object each patch lies on
 RANDOM = "ovrad_random"  # FLOAT in [0, 1), a stable random value per patch (display)
@@ -34,3 +35,4 @@ DISPLAY_MODIFIER = "ovrad display"
 
 SHAPE_DISK = 0
 SHAPE_SQUARE = 1
+SHAPE_BALL = 2  # holds the points of small pieces within its radius (clutter.py)

@@ -10,13 +10,14 @@ on the sheet are outside the support and get no weight).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix
 from scipy.spatial import cKDTree
 
-from .names import SHAPE_SQUARE
+from .contact import seen_members, visible
+from .names import SHAPE_BALL, SHAPE_SQUARE
 from .parallel import WORKERS, threaded
 from .support import alpha_from_pairs, pair_beta
 
@@ -175,25 +176,35 @@ def _piece_candidates(spans, lo, hi, r, kk, tt, planar, nb) -> np.ndarray:
 
 
 def patch_quadrature(
-    atlas, index, ids: np.ndarray, q: int, nb: np.ndarray | None = None, rings: int | None = None
+    atlas,
+    index,
+    ids: np.ndarray,
+    q: int,
+    nb: np.ndarray | None = None,
+    rings: int | None = None,
+    visibility: bool = True,
 ) -> Quadrature:
     """Quadrature of the supports D_h for patches `ids`, on the surface, with area weights.
 
     Rule points are moved onto the patch's own sheet along its normal; points that land on
     another sheet, or nowhere, are outside the support and get weight 0. Where that happens
     (the sheet's border cuts the patch) the radius is split 8 times finer, so the cut is
-    resolved closely.
+    resolved closely. Ball patches (clutter.py) are integrated with samples of the pieces they hold.
+    With `visibility`, points a cut patch cannot see along its sheet are outside it (contact.py).
     """
-    chart = index.sheet_chart[atlas.sheet[ids]]
-    planar = index.planar[chart]
     if nb is None:
         nb = np.zeros((len(ids), 0), np.int64)
+    ball = atlas.shapes[ids] == SHAPE_BALL
+    if ball.any():
+        return _with_balls(atlas, index, ids, q, nb, rings, ball, visibility)
+    chart = index.sheet_chart[atlas.sheet[ids]]
+    planar = index.planar[chart]
     if rings is None:
-        coarse = patch_quadrature(atlas, index, ids, q, nb, max(q // 4, 1))
+        coarse = patch_quadrature(atlas, index, ids, q, nb, max(q // 4, 1), visibility)
         cut = np.bincount(coarse.owner, weights=coarse.triangle < 0, minlength=len(ids)) > 0
         if not cut.any():
             return coarse
-        fine = patch_quadrature(atlas, index, ids[cut], q, nb[cut], 2 * q)
+        fine = patch_quadrature(atlas, index, ids[cut], q, nb[cut], 2 * q, visibility)
         keep = ~cut[coarse.owner]
         where = np.flatnonzero(cut)
         return Quadrature(
@@ -222,7 +233,9 @@ def patch_quadrature(
     # On planar sheets the rule point already lies on the surface: keep it exact.
     pts = np.where(on_plane[:, None], plane, origins - hit_t[:, None] * n)
     jac = np.where(on_plane, 1.0, 1.0 / np.maximum(np.abs(cos), 1e-12))
-    ok[ok] = ~_buried(index, pts[ok], tri_n[ok], 1e-4 * atlas.radii[g[ok]])
+    ok[ok] = ~buried(index, pts[ok], tri_n[ok], 1e-4 * atlas.radii[g[ok]])
+    if visibility:
+        ok[ok] = visible(atlas, index, g[ok], pts[ok])
     return Quadrature(
         owner=owner,
         points=pts,
@@ -233,7 +246,24 @@ def patch_quadrature(
     )
 
 
-def _buried(index, points: np.ndarray, normals: np.ndarray, lift: np.ndarray) -> np.ndarray:
+def _with_balls(atlas, index, ids, q, nb, rings, ball, visibility) -> Quadrature:
+    """patch_quadrature of ids when some are ball patches: their rule from clutter samples (at
+    most 8 q^2 points each), the others' as usual, in one Quadrature."""
+    from .clutter import ball_quadrature
+
+    parts = []
+    where = np.flatnonzero(ball)
+    owner, pts, nrm, w, tri = ball_quadrature(atlas, index, ids[where], 8 * q * q)
+    cand = nb[where][owner] >= 0  # any same-sheet neighbour may hold a sample
+    parts.append(Quadrature(where[owner], pts, nrm, w, tri, cand))
+    rest = np.flatnonzero(~ball)
+    if len(rest):
+        other = patch_quadrature(atlas, index, ids[rest], q, nb[rest], rings, visibility)
+        parts.append(replace(other, owner=rest[other.owner]))
+    return Quadrature(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(Quadrature)))
+
+
+def buried(index, points: np.ndarray, normals: np.ndarray, lift: np.ndarray) -> np.ndarray:
     """Surface points inside a closed object (a box's footprint on the floor it stands on).
 
     A ray along the normal that first meets the inside of a watertight mesh started inside it;
@@ -314,6 +344,7 @@ def overlap_matrix(
         pcol = np.concatenate([ids[quad.owner], nb[quad.owner[pt], slot]])
         sheets = np.where(quad.triangle >= 0, atlas.sheet[ids[quad.owner]], -1)
         member, b = pair_beta(atlas, pcol, quad.points[prow], quad.normals[prow], sheets[prow], atlas.beta)
+        member = seen_members(atlas, index, prow, pcol, quad.points[prow], member)
         alpha = alpha_from_pairs(prow, pcol, member, b, (len(quad.owner), n)).tocoo()
         # Sum per (h, i) within the chunk: what is kept is then the size of C, not of the rule.
         part = (
@@ -349,6 +380,7 @@ def alpha_at(atlas, index, points: np.ndarray, triangle: np.ndarray, side) -> cs
     nrm = index.charts.normals[np.maximum(tri, 0)] * np.where(side < 0, -1.0, 1.0)[:, None]
     rows, cols = atlas.grid.candidates(pts, sheets)
     member, b = pair_beta(atlas, cols, pts[rows], nrm[rows], None, atlas.beta)
+    member = seen_members(atlas, index, rows, cols, pts[rows], member)
     return alpha_from_pairs(rows, cols, member, b, (len(pts), len(atlas)))
 
 

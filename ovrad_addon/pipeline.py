@@ -13,6 +13,7 @@ import numpy as np
 from scipy.sparse import csc_matrix, csr_matrix, diags, spmatrix
 
 from .atlas import Atlas, SurfaceIndex, index_surfaces
+from .clutter import clutter_from_atlas
 from .direct import DirectLight, direct_irradiance, triangle_normals
 from .errors import OvradError
 from .gather import MAX_RAYS, NEAR_LIGHT_SAMPLES, NearField, gather_unique, sampled_emission
@@ -159,7 +160,7 @@ def _located_sheets(atlas: Atlas, index: SurfaceIndex) -> np.ndarray:
             # points land on the surface facing the patch's way is the patch's)
             best = (0, -1)
             for s, view in views.items():
-                q = patch_quadrature(probe, view, np.array([k]), 4, rings=2)
+                q = patch_quadrature(probe, view, np.array([k]), 4, rings=2, visibility=False)
                 hit = q.triangle[q.triangle >= 0]
                 if len(hit) > best[0]:
                     best = (len(hit), int(index.sheet_of(hit[:1], np.array([s]))[0]))
@@ -177,18 +178,20 @@ def _all_sheets_view(index: SurfaceIndex, side: int) -> SurfaceIndex:
     )
 
 
-def both_sides_index(surfaces: Surfaces, backend: str = "auto") -> SurfaceIndex:
+def both_sides_index(surfaces: Surfaces, backend: str = "auto", atlas: Atlas | None = None) -> SurfaceIndex:
     """The surfaces indexed with both sides of every chart as a sheet (sides=BOTH on every object):
     the index a solve and a reconstruction use, whatever sides the atlas was generated with (its
-    patches only occupy the sheets they lie on)."""
+    patches only occupy the sheets they lie on). The clutter charts are those `atlas` was
+    generated with (clutter.py), none without an atlas."""
     sides = AtlasSettings(objects=tuple(ObjectSettings(sides="BOTH") for _ in surfaces.object_names))
-    return index_surfaces(surfaces, sides, backend)
+    index = index_surfaces(surfaces, sides, backend, clutter=np.zeros(0, bool))
+    return index if atlas is None else index.with_clutter(clutter_from_atlas(index, atlas))
 
 
 def locate(surfaces: Surfaces, atlas: Atlas, backend: str = "auto") -> Problem:
     """A problem for reconstruction only (no C, no transport): the surfaces indexed as prepare()
     indexes them and the patches re-attached to their sheets. Much cheaper than prepare()."""
-    index = both_sides_index(surfaces, backend)
+    index = both_sides_index(surfaces, backend, atlas)
     return Problem(surfaces, attach_sheets(atlas, index), index, None, None, 0, {})
 
 
@@ -206,7 +209,7 @@ def prepare(
     seconds = {}
     t0 = time.perf_counter()
     report_stage(progress, 0.0, "indexing surfaces")
-    index = both_sides_index(surfaces, backend)
+    index = both_sides_index(surfaces, backend, atlas)
     atlas = attach_sheets(atlas, index)
     seconds["index"] = time.perf_counter() - t0
     report_stage(progress, 0.05, "integrating overlaps")

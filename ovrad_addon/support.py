@@ -4,7 +4,9 @@ A surface point M (with its sheet: chart and side) is in patch D_i when it lies 
 sheet, its normal agrees with n_i (cosine >= min_cos_i), it is within thickness_i of the patch
 plane, and its projection M_i onto the plane falls inside the disk or square. This is the
 paper's association M -> M_i, and it is what stops a patch leaking across a crease, a gap, a
-thin wall or onto a surface facing away.
+thin wall or onto a surface facing away. A ball patch (clutter.py) holds the points of its sheet
+within its radius of its centre, whatever their normals (its min_cos is below -1 and its
+thickness its radius).
 """
 
 from __future__ import annotations
@@ -12,19 +14,23 @@ from __future__ import annotations
 import numpy as np
 from scipy.sparse import csr_matrix
 
-from .names import SHAPE_SQUARE
+from .names import SHAPE_BALL, SHAPE_SQUARE
 
 RIM_TOLERANCE = 1e-5  # relative to the patch radius
 
 
 def beta_of(
-    patches, idx: np.ndarray, x: np.ndarray, y: np.ndarray, beta: str
+    patches, idx: np.ndarray, x: np.ndarray, y: np.ndarray, beta: str, h: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(inside, beta) for points at in-plane coords (x, y) of patches idx; beta is 0 outside."""
+    """(inside, beta) for points at in-plane coords (x, y) of patches idx, h their height above
+    the plane (read by ball patches only; None: 0); beta is 0 outside."""
     r = patches.radii[idx]
-    square = patches.shapes[idx] == SHAPE_SQUARE
+    shape = patches.shapes[idx]
+    square = shape == SHAPE_SQUARE
     u, v = x / r, y / r
     d2 = u * u + v * v
+    if h is not None:
+        d2 = d2 + np.where(shape == SHAPE_BALL, np.square(h / r), 0.0)
     # A hair of tolerance: points exactly on a patch's rim (mesh vertices on a chart border,
     # stored in float32 by Blender) must still count as covered.
     inside = np.where(
@@ -67,7 +73,7 @@ def _same_sheet_beta(patches, i, points, normals, beta: str) -> tuple[np.ndarray
     y = np.einsum("ij,ij->i", rel, patches.bitangents[i])
     n_i = patches.normals[i]
     h = np.einsum("ij,ij->i", rel, n_i)
-    inside, bb = beta_of(patches, i, x, y, beta)
+    inside, bb = beta_of(patches, i, x, y, beta, h)
     ok = inside & (np.einsum("ij,ij->i", normals, n_i) >= patches.min_cos[i])
     ok &= np.abs(h) <= patches.thickness[i]
     return ok, np.where(ok, bb, 0.0)

@@ -12,9 +12,10 @@ import pytest
 import scenes
 from ovrad_addon import names
 from ovrad_addon.atlas import Atlas, build_atlas, index_surfaces
+from ovrad_addon.clutter import chart_objects
 from ovrad_addon.errors import OvradError
-from ovrad_addon.pipeline import _located_sheets, attach_sheets
-from ovrad_addon.settings import AtlasSettings, ObjectSettings
+from ovrad_addon.pipeline import _located_sheets, attach_sheets, both_sides_index
+from ovrad_addon.settings import AtlasSettings
 from ovrad_addon.surfaces import Surfaces
 
 
@@ -128,24 +129,25 @@ def blender_round_trip(atlas: Atlas, source_object=None) -> Atlas:
     )
 
 
-def solve_index(surfaces: Surfaces):
-    """The index prepare() builds: every side of every object has a sheet."""
-    n = len(surfaces.object_names)
-    return index_surfaces(
-        surfaces, AtlasSettings(objects=tuple(ObjectSettings(sides="BOTH") for _ in range(n)))
-    )
+def solve_index(surfaces: Surfaces, atlas: Atlas | None = None):
+    """The index prepare() builds: every side of every object has a sheet, and the clutter
+    charts are those the atlas was made with."""
+    return both_sides_index(surfaces, atlas=atlas)
 
 
 def sheet_keys(index, sheet):
-    """(chart, side) of sheets: what stays the same between indexes of the same surfaces."""
-    return np.stack([index.sheet_chart[sheet], index.sheet_side[sheet]], 1)
+    """(chart, side) of sheets, (-1 - object, side) for clutter sheets: what stays the same
+    between indexes of the same surfaces."""
+    obj = chart_objects(index.surfaces, index.charts)[index.sheet_chart[sheet]]
+    key = np.where(index.sheet_clutter[sheet], -1 - obj, index.sheet_chart[sheet])
+    return np.stack([key, index.sheet_side[sheet]], 1)
 
 
 def check_reattached(surfaces: Surfaces, settings: AtlasSettings):
     atlas = build_atlas(surfaces, settings)
     built = index_surfaces(surfaces, settings)
     assert atlas.triangle is not None and atlas.side is not None
-    index = solve_index(surfaces)
+    index = solve_index(surfaces, atlas)
     back = attach_sheets(blender_round_trip(atlas), index)
     np.testing.assert_array_equal(sheet_keys(index, back.sheet), sheet_keys(built, atlas.sheet))
     return atlas, built, index
@@ -220,8 +222,9 @@ def test_stored_triangles_survive_other_objects_changing():
         np.concatenate(parts_o),
         object_names=["extra", *"abcd"],
     )
-    index = solve_index(s2)
-    back = attach_sheets(blender_round_trip(atlas, perm[atlas.source_object] + 1), index)
+    read = blender_round_trip(atlas, perm[atlas.source_object] + 1)
+    index = solve_index(s2, read)
+    back = attach_sheets(read, index)
     # the same triangles, seen from the same side, as when the atlas was built
     tri_old = built.sheet_chart[atlas.sheet]
     tri_new = index.sheet_chart[back.sheet]
@@ -229,9 +232,10 @@ def test_stored_triangles_survive_other_objects_changing():
     area_new = np.bincount(tri_new, minlength=index.charts.count)
     assert sorted(area_old[area_old > 0]) == sorted(area_new[area_new > 0])
     np.testing.assert_array_equal(index.sheet_side[back.sheet], built.sheet_side[atlas.sheet])
-    # each patch's stored triangle is in its new sheet's chart
+    # each patch's stored triangle, seen from its side, is on its new sheet
     t = s2.global_triangle(back.source_object, back.triangle)
-    np.testing.assert_array_equal(index.charts.chart[t], tri_new)
+    np.testing.assert_array_equal(index.sheet_of(t, back.side), back.sheet)
+    assert np.any(index.sheet_clutter[back.sheet])  # the leaves and tiny cubes are clutter
 
 
 def test_a_changed_mesh_is_still_reported():

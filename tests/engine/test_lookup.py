@@ -7,19 +7,22 @@ import pytest
 
 import scenes
 from ovrad_addon.atlas import build_atlas, index_surfaces
+from ovrad_addon.contact import seen_members
 from ovrad_addon.overlap import alpha_at
 from ovrad_addon.settings import AtlasSettings, ObjectSettings
 from ovrad_addon.support import alpha_from_pairs, pair_beta
 
 
 def brute_alpha(atlas, index, pts, tri, side):
-    """alpha from every (point, patch) pair: no candidate search at all."""
+    """alpha from every (point, patch) pair: no candidate search at all (then the same contact rule,
+    contact.py, as alpha_at)."""
     m, n = len(pts), len(atlas)
     rows = np.repeat(np.arange(m), n)
     cols = np.tile(np.arange(n), m)
     sheets = index.sheet_of(tri, side)
     nrm = index.charts.normals[tri] * side[:, None]
     member, b = pair_beta(atlas, cols, pts[rows], nrm[rows], sheets[rows], atlas.beta)
+    member = seen_members(atlas, index, rows, cols, pts[rows], member)
     return alpha_from_pairs(rows, cols, member, b, (m, n))
 
 

@@ -1,0 +1,116 @@
+"""Clutter: many small separate pieces are covered by a few ball patches (clutter.py), the patch
+count follows the settings instead of the piece count, and the light stays exact."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import scenes
+from ovrad_addon import names
+from ovrad_addon.atlas import build_atlas
+from ovrad_addon.clutter import clutter_from_atlas
+from ovrad_addon.overlap import alpha_at, overlap_matrix
+from ovrad_addon.pipeline import SolveSettings, both_sides_index, prepare, radiance_at, solve
+from ovrad_addon.settings import AtlasSettings
+from ovrad_addon.surfaces import Surfaces
+
+
+def cluttered_room(leaves: int = 200, cubes: int = 60, seed: int = 5) -> Surfaces:
+    """A closed 2 m room (inward faces) holding open bent leaves and separate tiny closed cubes
+    floating apart from each other: objects room, leaves, cubes."""
+    rng = np.random.default_rng(seed)
+    parts, objs = list(scenes.box_faces((-1, -1, 0), (1, 1, 2), inward=True)), [0] * 6
+    g = np.linspace(-1, 1, 3)
+    gx, gy = np.meshgrid(g, g, indexing="ij")
+    uv = np.stack([gx.ravel(), gy.ravel()], 1)
+    idx = np.arange(9).reshape(3, 3)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    leaf_t = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    for _ in range(leaves):
+        size = rng.uniform(0.01, 0.03)  # at most 6 cm across: far below the spacing
+        p = np.column_stack([uv * size, 0.3 * size * (uv**2).sum(1)])
+        q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        parts.append((p @ q.T + rng.uniform([-0.8, -0.8, 0.2], [0.8, 0.8, 1.8]), leaf_t))
+        objs.append(1)
+    # cubes on a lattice, so none touches another or a leaf's cube of space
+    cells = rng.choice(5 * 5 * 5, size=cubes, replace=False)
+    for cell in cells:
+        lo = np.array([cell % 5, (cell // 5) % 5, cell // 25]) * 0.3 + [-0.7, -0.7, 0.3]
+        box = scenes.box_faces(lo, lo + rng.uniform(0.01, 0.04))
+        parts += box
+        objs += [2] * len(box)
+    v, t, o = scenes.merge(parts, obj=objs)
+    return Surfaces.from_arrays(
+        v, t, o, reflectance=[0.9] * 3, emission=[2.0] * 3, object_names=["room", "leaves", "cubes"]
+    )
+
+
+@pytest.fixture(scope="module")
+def room():
+    return cluttered_room()
+
+
+@pytest.fixture(scope="module")
+def atlas(room):
+    return build_atlas(room, AtlasSettings(patch_count=300))
+
+
+def test_the_patch_count_follows_the_settings_not_the_pieces(room, atlas):
+    # 200 leaves and 60 cubes make 560 charts; one patch per chart would be far above 300
+    index = both_sides_index(room, atlas=atlas)
+    assert index.charts.count > 500
+    assert len(atlas) < 2 * 300
+    ball = atlas.shapes == names.SHAPE_BALL
+    assert set(atlas.source_object[ball]) == {1, 2}
+    assert not np.any(ball[atlas.source_object == 0])
+    # every leaf and cube chart is clutter at Solve, read back from the atlas alone
+    clutter = clutter_from_atlas(index, atlas)
+    chart_obj = np.zeros(index.charts.count, np.int64)
+    ok = index.charts.chart >= 0
+    chart_obj[index.charts.chart[ok]] = room.object_index[ok]
+    np.testing.assert_array_equal(clutter, chart_obj > 0)
+
+
+def points_on_pieces(room: Surfaces, count: int, seed: int):
+    """Uniform points on random triangles of the leaves and cubes, and a side: either side of a
+    leaf (open), the outside of a cube."""
+    rng = np.random.default_rng(seed)
+    tri = rng.choice(np.flatnonzero(room.object_index > 0), count)
+    u, v = rng.random(count), rng.random(count)
+    flip = u + v > 1
+    u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
+    c = room.corners[tri]
+    pts = c[:, 0] + u[:, None] * (c[:, 1] - c[:, 0]) + v[:, None] * (c[:, 2] - c[:, 0])
+    leaves = room.object_index[tri] == 1
+    return pts, tri, np.where(leaves & (rng.random(count) < 0.5), -1, 1)
+
+
+def test_alpha_sums_to_one_on_the_pieces_and_c_holds_their_area(room, atlas):
+    index = both_sides_index(room, atlas=atlas)
+    problem_atlas = prepare(room, atlas).atlas
+    pts, tri, side = points_on_pieces(room, 4000, seed=2)
+    a = alpha_at(problem_atlas, index, pts, tri, side)
+    np.testing.assert_allclose(np.asarray(a.sum(axis=1)).ravel(), 1.0, atol=1e-12)
+    # trace of C over the balls = the area they cover: both sides of every leaf, the outside
+    # of every cube (a closed separate cube: its inside is not part of any support)
+    C, support = overlap_matrix(problem_atlas, index, 12)
+    ball = problem_atlas.shapes == names.SHAPE_BALL
+    k = room.corners
+    tri_area = 0.5 * np.linalg.norm(np.cross(k[:, 1] - k[:, 0], k[:, 2] - k[:, 0]), axis=1)
+    leaves_area = tri_area[room.object_index == 1].sum()
+    cubes_area = tri_area[room.object_index == 2].sum()
+    expected = 2 * leaves_area + cubes_area
+    assert C.diagonal()[ball].sum() == pytest.approx(expected, rel=1e-9)
+    np.testing.assert_allclose(np.asarray(C.sum(axis=1)).ravel()[ball], support[ball], rtol=1e-9)
+
+
+def test_furnace_with_clutter_is_exact(room, atlas):
+    problem = prepare(room, atlas)
+    state = solve(problem, settings=SolveSettings(tolerance=1e-5))
+    pts, tri = scenes.sample_surface(room, 3000, seed=9)
+    L = radiance_at(problem, state.radiosity, pts, tri, 1)
+    np.testing.assert_allclose(L, 2.0 / (1 - 0.9), rtol=5e-3)
+    pts, tri, side = points_on_pieces(room, 3000, seed=3)
+    L = radiance_at(problem, state.radiosity, pts, tri, side)
+    np.testing.assert_allclose(L, 2.0 / (1 - 0.9), rtol=5e-3)

@@ -1,0 +1,110 @@
+"""Contacts (contact.py): no patch support crosses a line where other geometry stands on a sheet,
+and a vertex on such a line is baked from both sides.
+
+Two rooms joined by a doorway, the floor, ceiling and side walls running under and through an
+open 10 cm partition (the real-scenes doorway in numpy). Against a converged Cycles bake
+(tests/blender/test_real_scenes.py) the second room was 2.8 % too dark before supports were cut at
+contact lines, and the vertices on the lines were up to twice too bright or black.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+import scenes
+from ovrad_addon.atlas import build_atlas
+from ovrad_addon.contact import contacts, split_corners
+from ovrad_addon.overlap import alpha_at
+from ovrad_addon.pipeline import prepare
+from ovrad_addon.settings import AtlasSettings
+from ovrad_addon.surfaces import Surfaces
+
+W, T, D, H = 2.4, 0.1, 2.4, 2.4  # room width, partition thickness, depth, height
+Y0, Y1, Z1 = 0.8, 1.6, 2.0  # the doorway: y from Y0 to Y1, up to Z1
+X0, X1 = W, W + T
+
+
+def _facing(corners, normal):
+    v, t = scenes.quad(*corners)
+    if np.dot(np.cross(v[1] - v[0], v[2] - v[0]), normal) < 0:
+        t = t[:, ::-1]
+    return v, t
+
+
+def _x(x, ya, yb, za, zb, nx):
+    return _facing([(x, ya, za), (x, yb, za), (x, yb, zb), (x, ya, zb)], (nx, 0, 0))
+
+
+def _y(y, xa, xb, za, zb, ny):
+    return _facing([(xa, y, za), (xb, y, za), (xb, y, zb), (xa, y, zb)], (0, ny, 0))
+
+
+def _z(z, xa, xb, ya, yb, nz):
+    return _facing([(xa, ya, z), (xb, ya, z), (xb, yb, z), (xa, yb, z)], (0, 0, nz))
+
+
+def partition() -> list:
+    """Both faces around the doorway and its three reveals: an open mesh, its cavity open."""
+    parts = []
+    for x, nx in ((X0, -1), (X1, 1)):
+        parts += [_x(x, 0, Y0, 0, Z1, nx), _x(x, 0, Y0, Z1, H, nx), _x(x, Y0, Y1, Z1, H, nx)]
+        parts += [_x(x, Y1, D, 0, Z1, nx), _x(x, Y1, D, Z1, H, nx)]
+    parts += [_y(Y0, X0, X1, 0, Z1, 1), _y(Y1, X0, X1, 0, Z1, -1), _z(Z1, X0, X1, Y0, Y1, -1)]
+    return parts
+
+
+def two_rooms() -> Surfaces:
+    room = scenes.box_faces((0, 0, 0), (2 * W + T, D, H), inward=True)
+    lamp = _z(H - 0.05, 0.6, 1.2, 0.9, 1.5, -1)  # an emitting quad in the first room only
+    part = partition()
+    v, t, o = scenes.merge([*room, *part, lamp], obj=[0] * 6 + [1] * len(part) + [2])
+    reflectance = np.array([[0.8] * 3, [0.8] * 3, [0.0] * 3])[o]
+    emission = np.zeros((len(t), 3))
+    emission[o == 2] = 10.0
+    return Surfaces.from_arrays(v, t, o, reflectance, emission, ["rooms", "partition", "lamp"])
+
+
+def test_no_floor_support_crosses_the_partition():
+    s = two_rooms()
+    atlas = build_atlas(s, AtlasSettings(patch_count=1500))
+    index = prepare(s, atlas).index
+    problem_atlas = prepare(s, atlas).atlas
+    rng = np.random.default_rng(4)
+    m = 3000
+    x = rng.uniform(0.01, 2 * W + T - 0.01, m)
+    pts = np.column_stack([x, rng.uniform(0.01, D - 0.01, m), np.zeros(m)])
+    n = np.tile([0.0, 0.0, 1.0], (m, 1))
+    _, tri = index.rays.closest_hit(pts + 1e-3 * n, -n, 1.0)
+    a = alpha_at(problem_atlas, index, pts, tri, np.ones(m, np.int64)).tocoo()
+    anchor_x = contacts(problem_atlas, index).anchor[a.col, 0]
+    px = pts[a.row, 0]
+    anchor = contacts(problem_atlas, index).anchor[a.col]
+    # the doorway's floor joins both rooms: a patch anchored there may reach into either
+    in_doorway = (anchor[:, 0] >= X0) & (anchor[:, 0] <= X1) & (anchor[:, 1] > Y0) & (anchor[:, 1] < Y1)
+    # else a point in a room gets light only from patches anchored in that room
+    first, second = px < X0, px > X1
+    assert np.all(anchor_x[first & ~in_doorway] < X0)
+    assert np.all(anchor_x[second & ~in_doorway] > X1)
+    # and alpha still sums to one on every visible floor point
+    visible = (x < X0) | (x > X1) | ((pts[:, 1] > Y0) & (pts[:, 1] < Y1))
+    total = np.asarray(a.tocsr().sum(axis=1)).ravel()
+    np.testing.assert_allclose(total[visible], 1.0, atol=1e-12)
+
+
+def test_a_vertex_on_a_contact_line_is_split_between_its_faces():
+    s = two_rooms()
+    index = prepare(s, build_atlas(s, AtlasSettings(patch_count=600))).index
+    # two floor fans of four triangles: one around a vertex on the line where the partition's
+    # first face stands, one around a vertex in the open
+    fans = []
+    for k, (cx, cy) in enumerate(((X0, 0.4), (1.0, 1.0))):
+        ring = np.array([(cx + 0.05, cy), (cx, cy + 0.05), (cx - 0.05, cy), (cx, cy - 0.05)])
+        for j in range(4):
+            a, b = ring[j], ring[(j + 1) % 4]
+            fans.append((k, np.array([(cx, cy, 0.0), (*a, 0.0), (*b, 0.0)])))
+    vertex = np.repeat([k for k, _ in fans], 1)
+    corners = np.array([f[0] for _, f in fans])
+    inside = corners + 1e-4 * (np.array([f.mean(axis=0) for _, f in fans]) - corners)
+    normals = np.tile([0.0, 0.0, 1.0], (len(fans), 1))
+    split = split_corners(index, vertex, corners, inside, normals)
+    np.testing.assert_array_equal(split, vertex == 0)
