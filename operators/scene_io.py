@@ -239,7 +239,8 @@ def _light_color(light) -> tuple:
 
 
 def read_lamps(depsgraph, warnings: list[str] | None = None) -> tuple[Lamp, ...]:
-    """Lamps (engine Lamp, world space, Cycles units) of every light object in the view layer that renders.
+    """Lamps (engine Lamp, world space, Cycles units) of every light that renders: the view layer's
+    light objects and the lights inside collection instances (each at its instance's matrix).
 
     Power is W (point, spot, area) or W/m^2 (sun) times 2^exposure; colour times the blackbody
     colour when Temperature is used; area sizes are scaled by the object's scale. A point or spot
@@ -254,66 +255,84 @@ def read_lamps(depsgraph, warnings: list[str] | None = None) -> tuple[Lamp, ...]
         if obj.type != "LIGHT" or obj.hide_render:
             continue
         ev = obj.evaluated_get(depsgraph)
-        light = ev.data
-        m = np.array(ev.matrix_world, dtype=np.float64)
-        axes = m[:3, :3]
-        scale = np.linalg.norm(axes, axis=0)
-        if np.any(scale <= 0):
-            warnings.append(f"lamp '{obj.name}' has zero scale; skipped")
+        lamps += _lamp(obj.name, ev.data, np.array(ev.matrix_world, dtype=np.float64), warnings)
+    for inst in depsgraph.object_instances:
+        if not inst.is_instance or inst.object.type != "LIGHT":
             continue
-        position = tuple(m[:3, 3])
-        direction = tuple(-axes[:, 2] / scale[2])
-        tangent = tuple(axes[:, 0] / scale[0])
-        kind = light.type
-        radius = float(getattr(light, "shadow_soft_size", 0.0))
-        if getattr(light, "use_nodes", False):
-            warnings.append(f"lamp '{obj.name}': its node tree is ignored (only power and colour are read)")
-        common = dict(position=position, direction=direction, tangent=tangent, color=_light_color(light))
-        if kind in ("POINT", "SPOT"):
-            power = _light_power(light, 0.0, np.pi * radius * radius if radius > 0 else 1.0)
-            if kind == "POINT":
-                lamps.append(Lamp("POINT", power=power, radius=radius, **common))
-                continue
-            if not np.isclose(scale[0], scale[1], rtol=1e-4):
-                warnings.append(f"spot '{obj.name}' has a non-uniform scale: its cone is taken as round")
-            lamps.append(
-                Lamp(
-                    "SPOT",
-                    power=power,
-                    spot_size=float(light.spot_size),
-                    spot_blend=float(light.spot_blend),
-                    radius=radius,
-                    **common,
-                )
-            )
-        elif kind == "SUN":
-            angle = float(getattr(light, "angle", 0.0))
-            disk = np.pi * np.tan(0.5 * angle) ** 2 if angle > 0 else 1.0
-            lamps.append(Lamp("SUN", power=_light_power(light, 0.0, disk), angle=angle, **common))
-        elif kind == "AREA":
-            shape = light.shape
-            size_x = float(light.size) * scale[0]
-            size_y = float(light.size_y if shape in ("RECTANGLE", "ELLIPSE") else light.size) * scale[1]
-            # Scaled objects turn squares and disks into rectangles and ellipses.
-            if shape in ("SQUARE", "DISK") and not np.isclose(size_x, size_y, rtol=1e-6):
-                shape = "RECTANGLE" if shape == "SQUARE" else "ELLIPSE"
-            spread = float(getattr(light, "spread", np.pi))
-            if spread < np.pi - 1e-4:
-                warnings.append(
-                    f"area lamp '{obj.name}' has spread {np.degrees(spread):.0f} degrees: taken as 180 "
-                    "(a plain diffuse emitter)"
-                )
-            area = lamp_area(shape, size_x, size_y)
-            lamps.append(
-                Lamp(
-                    "AREA",
-                    power=_light_power(light, area, 1.0),
-                    shape=shape,
-                    size_x=size_x,
-                    size_y=size_y,
-                    **common,
-                )
-            )
-        else:
-            warnings.append(f"lamp '{obj.name}' of type {kind.lower()} is not supported; skipped")
+        orig = inst.object.original
+        parent = inst.parent.original if inst.parent is not None else None
+        if orig.hide_render or (parent is not None and not _renders(parent)):
+            continue
+        name = f"{parent.name if parent else '?'} > {orig.name}"
+        lamps += _lamp(name, inst.object.data, np.array(inst.matrix_world, dtype=np.float64), warnings)
     return tuple(lamps)
+
+
+def _renders(obj) -> bool:
+    """scene_model.renders (imported late: scene_model imports this module)."""
+    from .scene_model import renders
+
+    return renders(obj)
+
+
+def _lamp(name: str, light, m: np.ndarray, warnings: list[str]) -> list[Lamp]:
+    """One light at world matrix m as engine lamps (none, with a warning, if it cannot be used)."""
+    axes = m[:3, :3]
+    scale = np.linalg.norm(axes, axis=0)
+    if np.any(scale <= 0):
+        warnings.append(f"lamp '{name}' has zero scale; skipped")
+        return []
+    position = tuple(m[:3, 3])
+    direction = tuple(-axes[:, 2] / scale[2])
+    tangent = tuple(axes[:, 0] / scale[0])
+    kind = light.type
+    radius = float(getattr(light, "shadow_soft_size", 0.0))
+    if getattr(light, "use_nodes", False):
+        warnings.append(f"lamp '{name}': its node tree is ignored (only power and colour are read)")
+    common = dict(position=position, direction=direction, tangent=tangent, color=_light_color(light))
+    if kind in ("POINT", "SPOT"):
+        power = _light_power(light, 0.0, np.pi * radius * radius if radius > 0 else 1.0)
+        if kind == "POINT":
+            return [Lamp("POINT", power=power, radius=radius, **common)]
+        if not np.isclose(scale[0], scale[1], rtol=1e-4):
+            warnings.append(f"spot '{name}' has a non-uniform scale: its cone is taken as round")
+        return [
+            Lamp(
+                "SPOT",
+                power=power,
+                spot_size=float(light.spot_size),
+                spot_blend=float(light.spot_blend),
+                radius=radius,
+                **common,
+            )
+        ]
+    if kind == "SUN":
+        angle = float(getattr(light, "angle", 0.0))
+        disk = np.pi * np.tan(0.5 * angle) ** 2 if angle > 0 else 1.0
+        return [Lamp("SUN", power=_light_power(light, 0.0, disk), angle=angle, **common)]
+    if kind == "AREA":
+        shape = light.shape
+        size_x = float(light.size) * scale[0]
+        size_y = float(light.size_y if shape in ("RECTANGLE", "ELLIPSE") else light.size) * scale[1]
+        # Scaled objects turn squares and disks into rectangles and ellipses.
+        if shape in ("SQUARE", "DISK") and not np.isclose(size_x, size_y, rtol=1e-6):
+            shape = "RECTANGLE" if shape == "SQUARE" else "ELLIPSE"
+        spread = float(getattr(light, "spread", np.pi))
+        if spread < np.pi - 1e-4:
+            warnings.append(
+                f"area lamp '{name}' has spread {np.degrees(spread):.0f} degrees: taken as 180 "
+                "(a plain diffuse emitter)"
+            )
+        area = lamp_area(shape, size_x, size_y)
+        return [
+            Lamp(
+                "AREA",
+                power=_light_power(light, area, 1.0),
+                shape=shape,
+                size_x=size_x,
+                size_y=size_y,
+                **common,
+            )
+        ]
+    warnings.append(f"lamp '{name}' of type {kind.lower()} is not supported; skipped")
+    return []

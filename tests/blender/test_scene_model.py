@@ -247,3 +247,21 @@ def test_batch_without_options_bakes_instances_and_duplicates(ovrad, fresh_scene
     proc = run_blender(["-b", str(blend), "-P", str(BATCH), "--", "--output", str(out)], timeout=600)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr
     assert out.exists()
+
+
+def test_lamps_inside_collection_instances_light_the_scene(ovrad, fresh_scene):
+    coll = bpy.data.collections.new("Fixtures")
+    fresh_scene.collection.children.link(coll)
+    lamp = bpy.data.objects.new("Bulb", bpy.data.lights.new("Bulb", "POINT"))
+    lamp.data.energy, lamp.location = 100.0, (0.0, 0.0, 1.0)
+    coll.objects.link(lamp)
+    bpy.context.view_layer.layer_collection.children["Fixtures"].exclude = True
+    for k, x in enumerate((2.0, -3.0)):
+        empty = bpy.data.objects.new(f"Fixture{k}", None)
+        empty.instance_type, empty.instance_collection = "COLLECTION", coll
+        empty.location = (x, 0.0, 0.5)
+        fresh_scene.collection.objects.link(empty)
+    model = ovrad.operators.scene_model.read_model(bpy.context.evaluated_depsgraph_get(), fresh_scene)
+    # the excluded collection's own lamp does not render; each instance's does, where it is placed
+    assert sorted(lp.position for lp in model.lamps) == [(-3.0, 0.0, 1.5), (2.0, 0.0, 1.5)]
+    assert all(lp.kind == "POINT" and lp.power == pytest.approx(100.0) for lp in model.lamps)
