@@ -62,11 +62,14 @@ test: venv build
 # The built linux zip installed by each Blender's own installer into bpy 4.2 LTS, 4.5 LTS and 5.3
 # (Python 3.13), then the tests marked `versions`: one pytest process per Blender.
 test-versions: venv build $(VERSION_STAMPS)
-	@zip="$$($(LINUX_ZIP_CMD))"; status=0; \
+	@zip="$$($(LINUX_ZIP_CMD))"; status=0; ref="$(CURDIR)/build/versions_bake.npz"; rm -f "$$ref"; \
+	echo "== the development Blender's bakes (.venv), which the others must give again"; \
+	OVRAD_WRITE_VERSIONS_REFERENCE="$$ref" $(PY) -m pytest --confcutdir tests -q -m versions \
+		tests/blender/test_versions_agree.py || status=1; \
 	for v in $(BLENDER_VERSIONS); do \
 		start=$$(date +%s); \
 		echo "== Blender $$(.venv-bpy$$v/bin/python -c 'import importlib.metadata as m; print(m.version("bpy"))') (.venv-bpy$$v)"; \
-		OVRAD_EXTENSION_ZIP="$$zip" .venv-bpy$$v/bin/python -m pytest --confcutdir tests -q -m versions \
+		OVRAD_EXTENSION_ZIP="$$zip" OVRAD_VERSIONS_REFERENCE="$$ref" .venv-bpy$$v/bin/python -m pytest --confcutdir tests -q -m versions \
 			$(VERSION_TESTS) || status=1; \
 		echo "== .venv-bpy$$v: $$(( $$(date +%s) - start )) s"; \
 	done; exit $$status

@@ -2,12 +2,12 @@
 
 A furnace box (baked in this process) and the bundled Cornell demo (`scripts/ovrad_demo.py`, its
 default settings, through the command line) are compared vertex by vertex with the numbers the
-development Blender (bpy 5.0.1) gave, stored in tests/reference/versions_bake.npz. The solve is
-seeded, so the only differences left are Blender's (mesh and material reading) and the engine's
-dependencies' (scipy 1.15 on Python 3.11, 1.17 on 3.13, numpy 1.26 or 2.3) rounding.
-
-Write the reference again (on the development venv) with
-`OVRAD_WRITE_VERSIONS_REFERENCE=1 .venv/bin/python -m pytest tests/blender/test_versions_agree.py`.
+development Blender (bpy 5.0.1) gave in the same `make test-versions` run: it first runs this file
+on the development venv with OVRAD_WRITE_VERSIONS_REFERENCE=<file>, then each other Blender with
+OVRAD_VERSIONS_REFERENCE=<file>. The solve is seeded, so the only differences left are Blender's
+(mesh and material reading) and the engine's dependencies' (scipy 1.15 on Python 3.11, 1.17 on
+3.13, numpy 1.26 or 2.3) rounding. Without either variable (the main suite) only the furnace's
+closed form is checked.
 """
 
 from __future__ import annotations
@@ -26,8 +26,8 @@ bpy = pytest.importorskip("bpy")
 
 pytestmark = [pytest.mark.blender, pytest.mark.versions]
 
-REFERENCE = ROOT / "tests" / "reference" / "versions_bake.npz"
-WRITE = os.environ.get("OVRAD_WRITE_VERSIONS_REFERENCE") == "1"
+WRITE = os.environ.get("OVRAD_WRITE_VERSIONS_REFERENCE")
+COMPARE = os.environ.get("OVRAD_VERSIONS_REFERENCE")
 RHO, LE = 0.5, 1.0
 # Measured: bpy 4.2.23, 4.5.15 and 5.3.0 bake exactly the stored float32 numbers (difference 0).
 # The bounds leave room for rounding only, a thousandth of the seeded solve's own error (2 %).
@@ -35,13 +35,21 @@ FURNACE_RTOL = 1e-5
 CORNELL_REL_RMS = 1e-4
 
 
-def stored(name: str, values: np.ndarray) -> np.ndarray:
-    """The reference array `name`; with OVRAD_WRITE_VERSIONS_REFERENCE=1, `values` become it."""
+def stored(name: str, values: np.ndarray) -> np.ndarray | None:
+    """The development Blender's array `name` (None when not comparing): written from `values`
+    under OVRAD_WRITE_VERSIONS_REFERENCE, read under OVRAD_VERSIONS_REFERENCE."""
     if WRITE:
-        data = dict(np.load(REFERENCE)) if REFERENCE.is_file() else {}
+        path = Path(WRITE)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        data = dict(np.load(path)) if path.is_file() else {}
         data[name] = values.astype(np.float32)
-        np.savez_compressed(REFERENCE, **data)
-    return np.load(REFERENCE)[name].astype(np.float64)
+        np.savez_compressed(path, **data)
+        return None
+    if not COMPARE:
+        return None
+    if not Path(COMPARE).is_file():
+        pytest.fail(f"no bake of the development Blender at {COMPARE}: run `make test-versions`")
+    return np.load(COMPARE)[name].astype(np.float64)
 
 
 def rel_rms(a: np.ndarray, b: np.ndarray) -> float:
@@ -59,12 +67,15 @@ def test_furnace_box_bakes_the_same_numbers(ovrad, fresh_scene):
     baked = blender_scenes.color_values(box.data, "ovrad_radiance")[:, :3].astype(np.float64)
     np.testing.assert_allclose(baked, LE / (1 - RHO), rtol=0.02)
     reference = stored("furnace", baked)
+    if reference is None:
+        return
     print(
         f"furnace: largest relative difference {np.max(np.abs(baked / reference - 1)):.2e} from the reference"
     )
     np.testing.assert_allclose(baked, reference, rtol=FURNACE_RTOL)
 
 
+@pytest.mark.skipif(not (WRITE or COMPARE), reason="a cross-version comparison: make test-versions runs it")
 def test_cornell_demo_bakes_the_same_numbers(ovrad, run_blender, tmp_path):
     out = tmp_path / "cornell.blend"
     args = ["-b", str(blender_env.cornell_blend()), "--python-exit-code", "1"]
@@ -79,10 +90,8 @@ def test_cornell_demo_bakes_the_same_numbers(ovrad, run_blender, tmp_path):
         [blender_scenes.color_values(o.data, "ovrad_radiance")[:, :3] for o in meshes]
     ).astype(np.float64)
     reference = stored("cornell", baked)
+    if reference is None:
+        return
     assert baked.shape == reference.shape
     print(f"cornell: relative RMS difference {rel_rms(baked, reference):.2e} from the reference")
     assert rel_rms(baked, reference) < CORNELL_REL_RMS
-
-
-def test_reference_file_is_compact():
-    assert Path(REFERENCE).stat().st_size < 400_000
