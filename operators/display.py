@@ -5,6 +5,7 @@ from __future__ import annotations
 import bpy
 
 from ..ovrad_addon import names
+from . import compat
 
 # Bump when the node tree or the material changes: files saved with an older version are rebuilt in place.
 DISPLAY_VERSION = 1
@@ -72,9 +73,7 @@ def ensure_material() -> bpy.types.Material:
         return mat
     if mat is None:
         mat = bpy.data.materials.new(MATERIAL)
-    if mat.node_tree is None:  # Blender < 5.0 creates materials without nodes
-        mat.use_nodes = True
-    tree = mat.node_tree
+    tree = compat.use_nodes(mat)
     tree.nodes.clear()
     nodes, link = tree.nodes, tree.links.new
 
@@ -175,9 +174,12 @@ class _Builder:
 
     def compare(self, a, b):
         """1 where the integers a and b are equal, else 0."""
-        node = self.node(
-            "FunctionNodeCompare", [("A_INT", a), ("B_INT", b)], data_type="INT", operation="EQUAL"
-        )
+        node = self.node("FunctionNodeCompare", data_type="INT", operation="EQUAL")
+        for value, sock in zip((a, b), compat.compare_operands(node), strict=True):
+            if isinstance(value, bpy.types.NodeSocket):
+                self.link(value, sock)
+            else:
+                sock.default_value = value
         return node.outputs[0]
 
     def store(self, geo, name, dtype, value, domain="POINT"):
@@ -313,13 +315,13 @@ def ensure_node_group() -> bpy.types.GeometryNodeTree:
     users = [
         (o, m) for o in bpy.data.objects for m in o.modifiers if m.type == "NODES" and m.node_group == ng
     ]
-    saved = [{name: m.get(ident) for name, ident in _inputs(ng).items()} for _, m in users]
+    saved = [{name: compat.modifier_input(m, ident) for name, ident in _inputs(ng).items()} for _, m in users]
     _build_tree(ng, material)
     ng[VERSION_PROP] = DISPLAY_VERSION
     for (obj, mod), values in zip(users, saved, strict=True):
         for name, ident in _inputs(ng).items():
             value = values.get(name)
-            mod[ident] = INPUTS[name][1] if value is None else value
+            compat.set_modifier_input(mod, ident, INPUTS[name][1] if value is None else value)
         obj.update_tag()
     return ng
 
@@ -345,7 +347,7 @@ def ensure_modifier(obj, beta: str) -> bpy.types.NodesModifier:
     if mod is None or mod.type != "NODES":
         mod = obj.modifiers.new(names.DISPLAY_MODIFIER, "NODES")
     mod.node_group = ng
-    mod[input_identifier(ng, "Smooth Beta")] = beta == "smooth"
+    compat.set_modifier_input(mod, input_identifier(ng, "Smooth Beta"), beta == "smooth")
     return mod
 
 
@@ -354,7 +356,7 @@ def set_input(obj, name: str, value) -> bool:
     mod = obj.modifiers.get(names.DISPLAY_MODIFIER)
     if mod is None or mod.node_group is None:
         return False
-    mod[input_identifier(mod.node_group, name)] = value
+    compat.set_modifier_input(mod, input_identifier(mod.node_group, name), value)
     # Changing an ID property does not tag the object: re-evaluate so the viewport updates.
     obj.update_tag()
     return True

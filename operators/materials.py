@@ -12,8 +12,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import bpy
 import numpy as np
+
+from . import compat
 
 # What a surface gets when its material cannot be read (and what Blender renders without a material).
 DEFAULT_REFLECTANCE = (0.8, 0.8, 0.8)
@@ -160,8 +161,7 @@ def read_material(material, warnings: list[str]) -> MaterialLight:
     black = np.zeros(3)
     if material is None:
         return MaterialLight(np.array(DEFAULT_REFLECTANCE), black)
-    legacy = bpy.app.version < (5, 0, 0) and not material.use_nodes
-    if material.node_tree is None or legacy:
+    if not compat.renders_with_nodes(material):
         # A material without nodes renders as a diffuse surface of its viewport colour.
         return MaterialLight(_viewport(material), black)
     node = _surface_shader(material)

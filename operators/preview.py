@@ -14,7 +14,7 @@ import json
 import bpy
 
 from ..ovrad_addon.errors import OvradError
-from . import attributes
+from . import attributes, compat
 
 PREVIEW_PROP = "ovrad_preview"  # material: JSON record of what the preview changed; our nodes: 1
 SLOTS_PROP = "ovrad_preview_slots"  # object: indices of empty slots the preview filled
@@ -52,10 +52,8 @@ def _outputs(tree):
 
 def show(material, attribute: str) -> None:
     """Route `material`'s surface through the baked attribute; record what is replaced."""
-    used_nodes = material.node_tree is not None and (bpy.app.version >= (5, 0, 0) or material.use_nodes)
-    if material.node_tree is None or not used_nodes:
-        material.use_nodes = True  # Blender < 5.0 only: 5.0 materials always have nodes
-    tree = material.node_tree
+    used_nodes = compat.renders_with_nodes(material)
+    tree = compat.use_nodes(material)
     record = {"attribute": attribute, "use_nodes": used_nodes, "links": [], "added_output": None}
     outputs = _outputs(tree)
     emission = _nodes(tree, attribute)
@@ -96,16 +94,14 @@ def hide(material) -> list[str]:
                 continue
             tree.links.new(sock, out.inputs["Surface"])
     if not record["use_nodes"]:
-        material.use_nodes = False
+        material.use_nodes = False  # only ever recorded before 5.0 (compat.renders_with_nodes)
     del material[PREVIEW_PROP]
     return problems
 
 
 def _preview_material(attribute: str):
     mat = bpy.data.materials.new(PREVIEW_MATERIAL)
-    if mat.node_tree is None:
-        mat.use_nodes = True
-    tree = mat.node_tree
+    tree = compat.use_nodes(mat)
     tree.nodes.clear()
     out = tree.nodes.new("ShaderNodeOutputMaterial")
     tree.links.new(_nodes(tree, attribute), out.inputs["Surface"])

@@ -12,7 +12,7 @@ from ..ovrad_addon.albedo import TextureAlbedo
 from ..ovrad_addon.errors import OvradError
 from ..ovrad_addon.lights import Lamp, lamp_area
 from ..ovrad_addon.surfaces import Surfaces
-from . import materials
+from . import compat, materials
 
 
 @dataclass
@@ -225,16 +225,16 @@ def read_scene(depsgraph, receivers, occluders=(), model=None) -> SceneMeshes:
 def _light_power(light, world_area: float, radius_area: float) -> float:
     """Blender's power (or sun strength) as Cycles applies it: exposure, and the size factor of
     lamps whose 'Normalize' is off (their power then grows with their area)."""
-    power = float(light.energy) * 2.0 ** float(getattr(light, "exposure", 0.0))
-    if not getattr(light, "normalize", True):
+    power = float(light.energy) * 2.0 ** compat.light_exposure(light)
+    if not compat.light_normalized(light):
         power *= world_area if light.type == "AREA" else radius_area
     return power
 
 
 def _light_color(light) -> tuple:
     color = np.array(light.color[:3], float)
-    if getattr(light, "use_temperature", False):
-        color = color * np.array(light.temperature_color[:3], float)
+    if (blackbody := compat.light_temperature_color(light)) is not None:
+        color = color * np.array(blackbody, float)
     return tuple(color)
 
 
@@ -287,7 +287,7 @@ def _lamp(name: str, light, m: np.ndarray, warnings: list[str]) -> list[Lamp]:
     tangent = tuple(axes[:, 0] / scale[0])
     kind = light.type
     radius = float(getattr(light, "shadow_soft_size", 0.0))
-    if getattr(light, "use_nodes", False):
+    if compat.light_uses_nodes(light):
         warnings.append(f"lamp '{name}': its node tree is ignored (only power and colour are read)")
     common = dict(position=position, direction=direction, tangent=tangent, color=_light_color(light))
     if kind in ("POINT", "SPOT"):

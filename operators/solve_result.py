@@ -9,7 +9,7 @@ import bpy
 import numpy as np
 
 from ..ovrad_addon import names
-from . import attributes, display, environment
+from . import attributes, compat, display, environment
 from .solution import remember
 from .solve_inputs import SolveInputs, light_key
 from .solve_job import SolveJob, unshot_fraction
@@ -39,7 +39,7 @@ def save_state(scene, atlas_names: list[str]) -> SavedState:
         mod = obj.modifiers.get(names.DISPLAY_MODIFIER)
         q = None
         if mod is not None and mod.node_group is not None:
-            q = mod.get(display.input_identifier(mod.node_group, "Quantity"))
+            q = compat.modifier_input(mod, display.input_identifier(mod.node_group, "Quantity"))
         saved[name] = (old, None if q is None else int(q), obj.get(names.PROP_LIGHT_KEY))
     return SavedState(scene.ovrad.display_quantity, saved)
 

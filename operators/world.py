@@ -11,11 +11,10 @@ approximated. A world with strength 0, or none, gives no light.
 
 from __future__ import annotations
 
-import bpy
 import numpy as np
 
 from ..ovrad_addon.sky import Sky
-from . import materials
+from . import compat, materials
 
 MAX_SKY_WIDTH = 1024  # wider maps are averaged down by whole blocks of pixels (power kept)
 _SHADERS = ("ShaderNodeBackground", "ShaderNodeEmission")
@@ -28,8 +27,7 @@ def read_world(scene, warnings: list[str] | None = None) -> Sky | None:
     world = scene.world
     if world is None:
         return None
-    legacy = bpy.app.version < (5, 0, 0) and not world.use_nodes
-    if world.node_tree is None or legacy:
+    if not compat.renders_with_nodes(world):
         return _emitting(Sky(tuple(float(c) for c in world.color[:3])))
     shader = materials.surface_node(world.node_tree)
     if shader is None:

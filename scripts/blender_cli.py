@@ -232,9 +232,28 @@ def load_preferences(bpy: types.ModuleType) -> None:
     """Load saved preferences, which enables the add-ons and extensions they list."""
     config = bpy.utils.user_resource("CONFIG")
     if os.path.isfile(os.path.join(config, "userpref.blend")):
-        bpy.ops.wm.read_userpref()
+        if bpy.app.version < (4, 5, 0):
+            # The bpy 4.2 module crashes (segmentation fault) in wm.read_userpref whenever a
+            # userpref.blend exists (Blender 4.2 itself reads it at start-up). Enable what an
+            # install enables instead: every extension in the user's repositories.
+            enable_addons(",".join(installed_extensions(bpy)))
+        else:
+            bpy.ops.wm.read_userpref()
     if os.path.isfile(os.path.join(config, "startup.blend")):
         bpy.ops.wm.read_homefile()
+
+
+def installed_extensions(bpy: types.ModuleType) -> list[str]:
+    """Module names (bl_ext.REPO.ID) of the extensions installed in the user's repositories."""
+    found = []
+    for repo in bpy.context.preferences.extensions.repos:
+        folder = repo.directory
+        if not (repo.enabled and folder and os.path.isdir(folder)):
+            continue
+        for pkg in sorted(os.listdir(folder)):
+            if os.path.isfile(os.path.join(folder, pkg, "blender_manifest.toml")):
+                found.append(f"bl_ext.{repo.module}.{pkg}")
+    return found
 
 
 def enable_addons(names: str) -> None:

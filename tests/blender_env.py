@@ -20,6 +20,9 @@ BLENDER = SCRIPTS / "blender"
 EXTENSION_ID = "ovrad"
 REPO = "user_default"
 PLATFORM = "linux-x64"  # the zip the tests install (the machines are linux x86_64)
+# `make test-versions` runs the tests in other Blenders' venvs on the zip `make build` wrote (with
+# the development venv's builder): this names it, and no build happens in those venvs.
+ZIP_VARIABLE = "OVRAD_EXTENSION_ZIP"
 
 # Blender's per-user folders; each may be redirected on its own, so all are set.
 USER_DIRS = {
@@ -69,7 +72,12 @@ def build_script() -> ModuleType:
 
 
 def build_extension_zip(platform: str = PLATFORM) -> Path:
-    """The platform's extension zip in dist/, rebuilt only when a source is newer (or files changed)."""
+    """The platform's extension zip in dist/, rebuilt only when a source is newer (or files changed).
+
+    With OVRAD_EXTENSION_ZIP set (make test-versions), that zip as it is.
+    """
+    if given := os.environ.get(ZIP_VARIABLE):
+        return Path(given).resolve()
     zips = build_script().build(split_platforms=True, quiet=True)
     return zips[platform]
 
@@ -96,6 +104,28 @@ def cli_commands():
     import bpy
 
     return _load_script("blender_cli").Commands(bpy)
+
+
+@cache
+def cornell_blend() -> Path:
+    """The bundled Cornell box for this Blender: scenes/cornell.blend, or the same scene rebuilt.
+
+    scenes/cornell.blend is saved by Blender 5.0, whose file header Blender 4.5 reads and 4.2
+    does not; under a Blender older than 4.5 the scene is built again by its own deterministic
+    script (scripts/make_cornell.py) into the session's private folder.
+    """
+    import bpy
+
+    bundled = ROOT / "scenes" / "cornell.blend"
+    if bpy.app.version >= (4, 5, 0):
+        return bundled
+    out = private_user_resources() / "scenes" / "cornell.blend"
+    if not out.is_file():
+        script = SCRIPTS / "make_cornell.py"
+        proc = run_blender(["-b", "--python-exit-code", "1", "--python", script, "--", "--output", out])
+        if proc.returncode != 0 or not out.is_file():
+            raise RuntimeError(f"could not build the Cornell box:\n{proc.stdout}{proc.stderr}")
+    return out
 
 
 def module_name(ext_id: str = EXTENSION_ID, repo: str = REPO) -> str:
@@ -163,9 +193,10 @@ def run_blender(
 ) -> subprocess.CompletedProcess:
     """Run scripts/blender ARGS (Blender's command line on the bpy module) and capture its output.
 
-    It shares this session's private user folder unless `env` says otherwise.
+    It shares this session's private user folder and runs on this interpreter's bpy (the Blender
+    under test) unless `env` says otherwise.
     """
-    full_env = {**os.environ, **(env or {})}
+    full_env = {**os.environ, "OVRAD_PYTHON": sys.executable, **(env or {})}
     return subprocess.run(
         [str(BLENDER), *map(str, args)],
         cwd=str(cwd or ROOT),

@@ -85,6 +85,7 @@ def snapshot():
     )
 
 
+@pytest.mark.versions
 def test_generate_on_cube_makes_one_atlas_object_with_every_attribute(scene):
     cube = add_cube()
     select(cube)
@@ -109,6 +110,7 @@ def test_generate_on_cube_makes_one_atlas_object_with_every_attribute(scene):
     assert bpy.context.selected_objects == [cube] and bpy.context.view_layer.objects.active == cube
 
 
+@pytest.mark.versions
 def test_atlas_attributes_survive_save_and_reload(scene, tmp_path):
     select(add_cube())
     bpy.ops.ovrad.generate_atlas()
@@ -148,6 +150,7 @@ def test_generating_again_replaces_only_that_sources_atlas(scene):
     assert impostor.users_collection[0].name != "ovrad"
 
 
+@pytest.mark.versions
 def test_undo_restores_the_previous_atlas(scene):
     # bpy.ops called from Python in background mode pushes no undo step (checked: the undo stack stays
     # as it was), so the test pushes the steps the UI pushes around an UNDO operator itself.
@@ -219,6 +222,7 @@ def test_mirrored_object_keeps_outward_normals(scene):
     assert np.all(np.einsum("ij,ij->i", attribute(mesh, "ovrad_normal"), p) > 0.9)
 
 
+@pytest.mark.versions
 def test_modifiers_and_transforms_are_applied(scene):
     cube = add_cube(location=(0.0, 0.0, 10.0))
     mod = cube.modifiers.new("array", "ARRAY")

@@ -42,6 +42,7 @@ def solved(box):
     return box
 
 
+@pytest.mark.versions
 def test_point_and_corner_domains_hold_the_furnace_answer(solved):
     mesh = solved.data
     assert bpy.ops.ovrad.bake_vertex(domain="CORNER", attribute="corner") == {"FINISHED"}
@@ -59,6 +60,7 @@ def test_point_and_corner_domains_hold_the_furnace_answer(solved):
     assert mesh.color_attributes[mesh.color_attributes.render_color_index].name == "ovrad_radiance"
 
 
+@pytest.mark.versions
 @pytest.mark.parametrize("gather_rays", [0, 64])
 def test_the_furnace_answer_with_the_final_gather_or_from_the_patches(ovrad, solved, gather_rays):
     # 0: the indirect light reconstructed from the patches (the paper); else gathered once per
@@ -83,6 +85,7 @@ def test_irradiance_is_the_light_arriving_without_albedo_or_emission(solved):
     np.testing.assert_allclose(L, LE + RHO * H, rtol=1e-4)
 
 
+@pytest.mark.versions
 def test_baking_twice_replaces_its_own_attribute(solved):
     mesh = solved.data
     bpy.ops.ovrad.bake_vertex()
@@ -99,6 +102,7 @@ def test_baking_twice_replaces_its_own_attribute(solved):
     np.testing.assert_allclose(colors(mesh, "ovrad_radiance")[:, :3], 2 * first[0, 0], rtol=0.02)
 
 
+@pytest.mark.versions
 def test_a_users_attribute_of_that_name_is_never_overwritten(solved):
     mesh = solved.data
     mine = mesh.color_attributes.new("ovrad_radiance", "BYTE_COLOR", "CORNER")
@@ -154,6 +158,7 @@ def test_an_empty_attribute_name_is_refused(solved):
         bpy.ops.ovrad.bake_vertex(attribute="  ")
 
 
+@pytest.mark.versions
 def test_undo_takes_back_a_solve_and_a_bake(box):
     # Background bpy.ops push no undo steps: push the ones the UI pushes around UNDO operators.
     bpy.ops.ed.undo_push(message="before")

@@ -14,7 +14,7 @@ import blender_env
 pytestmark = pytest.mark.blender
 
 ROOT = Path(__file__).resolve().parents[2]
-CORNELL = ROOT / "scenes" / "cornell.blend"
+CORNELL = blender_env.cornell_blend()  # scenes/cornell.blend, or rebuilt where unreadable
 BATCH = ROOT / "scripts" / "ovrad_batch.py"
 SMALL = ["--patch-count", "200"]
 MESHES = ["Floor", "Ceiling", "BackWall", "LeftWall", "RightWall", "ShortBlock", "TallBlock", "Light"]
@@ -53,6 +53,7 @@ def one_error_line(proc) -> str:
     return lines[0]
 
 
+@pytest.mark.versions
 def test_vertex_bake_saves_attributes_report_and_picture(ovrad, run_blender, tmp_path):
     before = digest(CORNELL)
     out, report, picture = tmp_path / "out" / "baked.blend", tmp_path / "r.json", tmp_path / "p.png"
@@ -147,6 +148,7 @@ def uv_scene(run_blender, tmp_path) -> Path:
     return path
 
 
+@pytest.mark.versions
 def test_image_target_writes_exr_next_to_the_output(ovrad, run_blender, tmp_path):
     src = uv_scene(run_blender, tmp_path)
     out, report = tmp_path / "img" / "o.blend", tmp_path / "r.json"
@@ -207,6 +209,7 @@ def test_without_a_file_open(ovrad, run_blender, tmp_path):
     assert "no .blend file is open" in one_error_line(proc)
 
 
+@pytest.mark.versions
 def test_blender_c_ovrad_runs_the_same_batch(ovrad, run_blender, tmp_path):
     out, report = tmp_path / "c.blend", tmp_path / "r.json"
     cmd = ["-c", "ovrad", "--input", str(CORNELL), *SMALL, "--output", str(out), "--report", str(report)]
@@ -232,6 +235,7 @@ def test_batch_runs_from_a_checkout_without_the_extension(run_blender, tmp_path)
     assert json.loads(report.read_text())["ovrad"] == "ovrad"
 
 
+@pytest.mark.versions
 def test_the_copy_shipped_inside_the_extension_runs(ovrad, run_blender, tmp_path):
     shipped = Path(ovrad.__file__).parent / "scripts" / "ovrad_batch.py"
     assert shipped.is_file()

@@ -12,7 +12,7 @@ import blender_env
 pytestmark = pytest.mark.blender
 
 ROOT = Path(__file__).resolve().parents[2]
-CORNELL = ROOT / "scenes" / "cornell.blend"
+CORNELL = blender_env.cornell_blend()  # scenes/cornell.blend, or rebuilt where unreadable
 SMALL = ["--patch-count", "300", "--picture-samples", "1", "--picture-size", "48"]
 LINE = re.compile(
     r"ovrad demo \(([\w.]+)\): (\d+) patches \(box beta\), bake [\d.]+ s .*"

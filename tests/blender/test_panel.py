@@ -47,6 +47,7 @@ def draw_panel(ovrad):
     return shown
 
 
+@pytest.mark.versions
 def test_every_setting_is_reachable_from_the_panel(ovrad, fresh_scene):
     bpy.ops.mesh.primitive_cube_add()
     props = fresh_scene.ovrad
@@ -75,6 +76,7 @@ def test_sub_panels_sit_under_the_main_panel_with_the_expert_settings_collapsed(
     assert [name for kind, name in shown if kind == "prop"] == list(expert)
 
 
+@pytest.mark.versions
 def test_panel_shows_settings_generate_and_the_active_objects_overrides(ovrad, fresh_scene):
     bpy.ops.mesh.primitive_cube_add()
     shown = draw_panel(ovrad)
@@ -115,6 +117,7 @@ def test_panel_is_in_the_3d_view_sidebar(ovrad):
     assert hasattr(bpy.types, "OVRAD_PT_main")
 
 
+@pytest.mark.versions
 def test_disabling_removes_everything_the_extension_registered(ovrad):
     import addon_utils
 

@@ -95,6 +95,7 @@ def surface_source(mat, output):
     return output.inputs["Surface"].links[0].from_node
 
 
+@pytest.mark.versions
 def test_preview_shows_the_bake_and_the_second_press_restores_everything(baked, ovrad):
     room, inner, bare = baked
     before = snapshot()
@@ -138,6 +139,7 @@ def test_preview_without_a_bake_is_refused_and_changes_nothing(ovrad, fresh_scen
     assert snapshot() == before
 
 
+@pytest.mark.versions
 def test_preview_follows_the_chosen_attribute(baked, ovrad):
     bpy.ops.ovrad.bake_vertex(attribute="irr", quantity="IRRADIANCE")
     bpy.context.scene.ovrad.bake_attribute = "irr"

@@ -36,6 +36,7 @@ def colors(io, mat):
     return light.reflectance, light.emission, warnings
 
 
+@pytest.mark.versions
 def test_principled_base_and_emission_colours_are_read(io):
     mat = material(
         "p",
@@ -48,6 +49,7 @@ def test_principled_base_and_emission_colours_are_read(io):
     assert np.allclose(rho, [0.2, 0.4, 0.6]) and np.allclose(em, [4.0, 2.0, 1.0]) and warnings == []
 
 
+@pytest.mark.versions
 def test_diffuse_and_emission_shaders_are_read(io):
     rho, em, w = colors(io, material("d", "ShaderNodeBsdfDiffuse", Color=(0.1, 0.2, 0.3, 1)))
     assert np.allclose(rho, [0.1, 0.2, 0.3]) and np.allclose(em, 0.0) and w == []
@@ -63,6 +65,7 @@ def test_no_material_is_the_grey_blender_renders_without_warning(io):
     assert np.allclose(rho, 0.8) and np.allclose(em, 0.0) and w == []
 
 
+@pytest.mark.versions
 def test_unreadable_materials_give_their_viewport_colour_and_a_warning_naming_them(io):
     glassy = material("Glassy", "ShaderNodeBsdfGlass")
     glassy.diffuse_color = (0.3, 0.6, 0.9, 1.0)
@@ -112,6 +115,7 @@ def textured(name, shader="ShaderNodeBsdfPrincipled", uv_map=None):
     return mat
 
 
+@pytest.mark.versions
 def test_an_image_texture_is_read_as_linear_pixels(io):
     for shader in ("ShaderNodeBsdfPrincipled", "ShaderNodeBsdfDiffuse"):
         light = io.materials.read_material(textured(shader[-9:], shader), w := [])
@@ -147,6 +151,7 @@ def plane_uv(surfaces, layer):
     return (surfaces.corners[..., :2] + 0.5) / (layer + 1)
 
 
+@pytest.mark.versions
 def test_textures_reach_the_surfaces_through_the_active_or_a_named_uv_map(io):
     plane = uv_plane("First", "Second")
     plane.data.uv_layers["First"].active_render = True

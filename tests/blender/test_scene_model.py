@@ -93,6 +93,7 @@ def bake_floor(scene, pillar: str) -> np.ndarray:
     return co, colors(fl.data, "ovrad_radiance")
 
 
+@pytest.mark.versions
 def test_a_collection_instance_shadows_and_reflects_like_the_same_real_object(ovrad, fresh_scene):
     co, bare = bake_floor(fresh_scene, "none")
     _, real = bake_floor(blender_env_reset(), "object")
@@ -121,6 +122,7 @@ def blender_env_reset():
     return blender_env.reset_scene()
 
 
+@pytest.mark.versions
 def test_geometry_nodes_instances_are_read(ovrad, fresh_scene, monkeypatch, capsys):
     bpy.ops.mesh.primitive_plane_add(size=2.0, location=(0.0, 0.0, 3.0))
     scatter = bpy.context.active_object

@@ -72,6 +72,7 @@ def furnace(ovrad, fresh_scene):
     return box
 
 
+@pytest.mark.versions
 def test_furnace_box_bakes_le_over_one_minus_rho_at_every_vertex(furnace, ovrad):
     assert bpy.ops.ovrad.solve() == {"FINISHED"}
     atlas = atlas_of("Box")
@@ -89,6 +90,7 @@ def test_furnace_box_bakes_le_over_one_minus_rho_at_every_vertex(furnace, ovrad)
     np.testing.assert_allclose(baked[:, :3], LE / (1 - RHO), rtol=0.02)
 
 
+@pytest.mark.versions
 def test_cancelling_a_synchronous_solve_leaves_the_scene_as_it_was(furnace, ovrad, monkeypatch):
     solve = ovrad.operators.solve
     assert bpy.ops.ovrad.solve() == {"FINISHED"}  # a first solution, which must survive
@@ -161,6 +163,7 @@ def test_live_solve_to_the_end_writes_the_same_answer(furnace, ovrad):
     assert p.fraction == pytest.approx(1.0) and p.unshot < 1e-4 and "unshot" in p.text()
 
 
+@pytest.mark.versions
 def test_changing_lamps_or_emission_only_reuses_the_form_factors(furnace, ovrad, capsys):
     ovrad.operators.solution.clear_cache()
     assert bpy.ops.ovrad.solve() == {"FINISHED"}
@@ -218,6 +221,7 @@ def test_missing_or_moved_source_mesh_is_refused(furnace, ovrad):
         bpy.ops.ovrad.solve()
 
 
+@pytest.mark.versions
 def test_occluders_cast_shadows_and_world_light_counts(ovrad, fresh_scene, capfd):
     """A sun and a dim constant world over a floor, half of it under a card that has no atlas:
     the card still shadows; the world adds pi L to the open floor."""

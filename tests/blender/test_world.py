@@ -52,6 +52,7 @@ def test_no_world_or_strength_zero_gives_no_light(world):
     assert mod.read_world(scene) is None
 
 
+@pytest.mark.versions
 def test_a_constant_world_is_its_colour_times_strength(world):
     mod, scene, w, bg = world
     bg.inputs["Color"].default_value = (0.2, 0.4, 0.6, 1.0)
@@ -62,6 +63,7 @@ def test_a_constant_world_is_its_colour_times_strength(world):
     np.testing.assert_allclose(sky.color, (0.5, 1.0, 1.5), rtol=1e-6)
 
 
+@pytest.mark.versions
 def test_an_environment_texture_is_read_linear_times_strength_and_turned(world):
     mod, scene, w, bg = world
     rng = np.random.default_rng(3)
@@ -91,6 +93,7 @@ def test_an_environment_texture_is_read_linear_times_strength_and_turned(world):
     np.testing.assert_allclose(got, 1.5 * ((0.5 + 0.055) / 1.055) ** 2.4, rtol=1e-2)  # 8-bit rounding
 
 
+@pytest.mark.versions
 def test_a_sky_texture_falls_back_to_the_viewport_colour_with_one_warning(world):
     mod, scene, w, bg = world
     w.color = (0.3, 0.4, 0.5)
