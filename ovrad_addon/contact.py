@@ -3,9 +3,9 @@
 A floor that runs under a partition, a wall that passes through a floor, a shelf on a wall: the
 other geometry meets the sheet along a contact line, and light on one side of that line has
 nothing to do with light on the other (or under it). A patch whose disk crosses such a line
-averages both sides, darkening the lit side and lighting the hidden one; measured on two rooms
-joined by a doorway through an open 10 cm partition, the second room came out 2.5-6 % darker
-than with the partition's cavity closed (the same visible scene).
+averages both sides, darkening the lit side and lighting the hidden one: on two rooms joined by a
+doorway through an open 10 cm partition (benchmarks/real_scenes.py), the second room came out
+2.8 % darker than a converged Cycles bake; +0.5 % with the supports cut.
 
 So on planar sheets a point M belongs to D_h only if it can be seen from the patch's anchor (a
 point of its support) along the sheet: the segment between the two, lifted a hair off the sheet
