@@ -222,12 +222,10 @@ class SurfaceIndex:
     @cached_property
     def sheet_area(self) -> np.ndarray:
         """(n_sheets,) area of each sheet (a clutter sheet: of all its charts)."""
-        ch = self.charts
-        ok = ch.chart >= 0
-        chart_area = np.bincount(ch.chart[ok], weights=ch.areas[ok], minlength=ch.count)
         has = self.sheet_table >= 0
         rows = np.nonzero(has)[0]
-        return np.bincount(self.sheet_table[has], weights=chart_area[rows], minlength=len(self.sheet_chart))
+        weights = self.charts.chart_areas[rows]
+        return np.bincount(self.sheet_table[has], weights=weights, minlength=len(self.sheet_chart))
 
 
 def _chart_planarity(surfaces: Surfaces, charts: Charts) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -241,7 +239,7 @@ def _chart_planarity(surfaces: Surfaces, charts: Charts) -> tuple[np.ndarray, np
     mean_n = ns / np.maximum(np.linalg.norm(ns, axis=1, keepdims=True), 1e-300)
     cen = surfaces.corners[ok].mean(axis=1)
     csum = np.stack([np.bincount(ch, weights=cen[:, j] * w, minlength=nc) for j in range(3)], 1)
-    centroid = csum / np.maximum(np.bincount(ch, weights=w, minlength=nc)[:, None], 1e-300)
+    centroid = csum / np.maximum(charts.chart_areas[:, None], 1e-300)
     dev = np.abs(np.einsum("tvk,tk->tv", surfaces.corners[ok] - centroid[ch][:, None], mean_n[ch])).max(
         axis=1
     )
@@ -250,7 +248,7 @@ def _chart_planarity(surfaces: Surfaces, charts: Charts) -> tuple[np.ndarray, np
     tilt = np.ones(nc)
     np.minimum.at(tilt, ch, np.einsum("ij,ij->i", charts.normals[ok], mean_n[ch]))
     planar = (worst <= 1e-6 * max(surfaces.extent, 1e-300)) & (tilt >= 1 - 1e-9)
-    size = np.sqrt(np.bincount(ch, weights=w, minlength=nc))
+    size = np.sqrt(charts.chart_areas)
     flat = planar | ((worst <= 5e-3 * size) & (tilt >= np.cos(np.radians(3.0))))
     return planar, flat, worst
 
@@ -349,10 +347,7 @@ def _small_charts(index: SurfaceIndex, settings: AtlasSettings) -> np.ndarray:
         return np.zeros(index.charts.count, bool)
     spacing = np.full(index.charts.count, np.inf)
     np.minimum.at(spacing, index.sheet_chart, _sheet_spacing(index, settings))
-    ch = index.charts
-    ok = ch.chart >= 0
-    chart_area = np.bincount(ch.chart[ok], weights=ch.areas[ok], minlength=ch.count)
-    return clutter_mod.small_charts(chart_area, spacing) & np.isfinite(spacing)
+    return clutter_mod.small_charts(index.charts.chart_areas, spacing) & np.isfinite(spacing)
 
 
 def _sheet_spacing(index: SurfaceIndex, settings: AtlasSettings) -> np.ndarray:

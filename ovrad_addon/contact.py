@@ -54,12 +54,13 @@ def _checked(atlas, index) -> np.ndarray:
 
 
 def _rule(atlas, index, ids):
-    """The on-sheet points of a coarse rule of patches ids: (owner position in ids, points, weights)."""
+    """The on-sheet points of a coarse rule of patches ids, without the contact rule: (owner position
+    in ids, points, weights, triangles)."""
     from .overlap import patch_quadrature
 
     quad = patch_quadrature(atlas, index, ids, 4, rings=2, visibility=False)
     on = np.flatnonzero(quad.weights > 0)
-    return quad.owner[on], quad.points[on], quad.weights[on]
+    return quad.owner[on], quad.points[on], quad.weights[on], quad.triangle[on]
 
 
 def _nearest(atlas, ids, owner, points, among) -> np.ndarray:
@@ -97,7 +98,7 @@ def contacts(atlas, index) -> Contacts:
     cut = np.zeros(n, bool)
     ids = _checked(atlas, index)
     if len(ids):
-        owner, points, _ = _rule(atlas, index, ids)
+        owner, points, _, _ = _rule(atlas, index, ids)
         todo = ~np.all(np.isfinite(anchor[ids]), axis=1)
         near = _nearest(atlas, ids, owner, points, todo[owner])
         got = near >= 0
@@ -126,11 +127,7 @@ def split_at_contacts(atlas, index, pieces: int = MAX_PIECES, least: float = LEA
     other = np.setdiff1d(np.arange(n), ids)
     rows, anchors, tris = [other], [atlas.centers[other]], [np.full(len(other), -1, np.int64)]
     if len(ids):
-        from .overlap import patch_quadrature
-
-        quad = patch_quadrature(atlas, index, ids, 4, rings=2, visibility=False)
-        on = np.flatnonzero(quad.weights > 0)
-        owner, points, weights, tri = quad.owner[on], quad.points[on], quad.weights[on], quad.triangle[on]
+        owner, points, weights, tri = _rule(atlas, index, ids)
         lift = _lift(atlas, index)
         part = np.full(len(owner), -1, np.int64)
         heads = []

@@ -174,6 +174,12 @@ class Charts:
     def count(self) -> int:
         return len(self.closed)
 
+    @cached_property
+    def chart_areas(self) -> np.ndarray:
+        """(n_charts,) area of each chart."""
+        ok = self.chart >= 0
+        return np.bincount(self.chart[ok], weights=self.areas[ok], minlength=self.count)
+
 
 def find_charts(surfaces: Surfaces, crease_angle_deg: float) -> Charts:
     """Split the surfaces into charts: edge-connected, same object, dihedral angle below the crease.

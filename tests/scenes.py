@@ -128,6 +128,17 @@ def plane(size: float = 1.0, n: int = 1, z: float = 0.0) -> tuple[np.ndarray, np
     return v, t
 
 
+def bent_leaf(rng: np.random.Generator, size: float, sag: float, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """An open leaf centred at the origin: an n x n grid on [-size, size]^2 bent into a bowl
+    (height sag * size * (u^2 + v^2) in grid units), turned by a random rotation from rng."""
+    g = np.linspace(-1, 1, n + 1)
+    gu, gv = np.meshgrid(g, g, indexing="ij")
+    uv = np.stack([gu.ravel(), gv.ravel()], 1)
+    p = np.column_stack([uv * size, sag * size * (uv**2).sum(1)])
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    return p @ q.T, plane(2.0, n)[1]
+
+
 def thin_wall_rooms(gap: float = 0.01) -> Surfaces:
     """Two closed rooms (inward normals) sharing a thin wall of thickness `gap` at x = 0."""
     left = box_faces((-1, 0, 0), (-gap / 2, 1, 1), inward=True)

@@ -62,17 +62,10 @@ def messy(seed: int = 3) -> Surfaces:
     room = scenes.box_faces((-1.5, -1.5, 0), (1.5, 1.5, 2), inward=True)
     parts += room
     objs += [0] * len(room)
-    g = np.linspace(-1, 1, 4)
-    gx, gy = np.meshgrid(g, g, indexing="ij")
-    uv = np.stack([gx.ravel(), gy.ravel()], 1)
-    idx = np.arange(16).reshape(4, 4)
-    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
-    leaf_t = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
     for _ in range(300):  # leaves: open, curved, tiny next to the patch spacing
         size, bend = rng.uniform(0.01, 0.06), rng.uniform(0.1, 0.6)
-        p = np.column_stack([uv * size, bend * size * (uv**2).sum(1) / 2])
-        q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
-        parts.append((p @ q.T + [rng.uniform(-1, 1), rng.uniform(-1, 1), rng.uniform(0.05, 1)], leaf_t))
+        v, t = scenes.bent_leaf(rng, size, bend / 2, 3)
+        parts.append((v + [rng.uniform(-1, 1), rng.uniform(-1, 1), rng.uniform(0.05, 1)], t))
         objs.append(1)
     for _ in range(200):  # tiny cubes, closed, some intersecting each other
         lo = np.array([rng.uniform(-1, 1), rng.uniform(-1, 1), rng.uniform(0.0, 0.5)])

@@ -21,17 +21,10 @@ def cluttered_room(leaves: int = 200, cubes: int = 60, seed: int = 5) -> Surface
     floating apart from each other: objects room, leaves, cubes."""
     rng = np.random.default_rng(seed)
     parts, objs = list(scenes.box_faces((-1, -1, 0), (1, 1, 2), inward=True)), [0] * 6
-    g = np.linspace(-1, 1, 3)
-    gx, gy = np.meshgrid(g, g, indexing="ij")
-    uv = np.stack([gx.ravel(), gy.ravel()], 1)
-    idx = np.arange(9).reshape(3, 3)
-    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
-    leaf_t = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
     for _ in range(leaves):
         size = rng.uniform(0.01, 0.03)  # at most 6 cm across: far below the spacing
-        p = np.column_stack([uv * size, 0.3 * size * (uv**2).sum(1)])
-        q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
-        parts.append((p @ q.T + rng.uniform([-0.8, -0.8, 0.2], [0.8, 0.8, 1.8]), leaf_t))
+        v, t = scenes.bent_leaf(rng, size, 0.3, 2)
+        parts.append((v + rng.uniform([-0.8, -0.8, 0.2], [0.8, 0.8, 1.8]), t))
         objs.append(1)
     # cubes on a lattice, so none touches another or a leaf's cube of space
     cells = rng.choice(5 * 5 * 5, size=cubes, replace=False)
