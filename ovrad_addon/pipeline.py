@@ -16,7 +16,7 @@ from .atlas import Atlas, SurfaceIndex, index_surfaces
 from .clutter import clutter_from_atlas
 from .direct import DirectLight, direct_irradiance, triangle_normals
 from .errors import OvradError
-from .gather import MAX_RAYS, NEAR_LIGHT_SAMPLES, NearField, gather_unique, sampled_emission
+from .gather import MAX_RAYS, NEAR_LIGHT_SAMPLES, NEAR_SKY_SAMPLES, NearField, gather_unique, sampled_emission
 from .lights import Lamp
 from .overlap import alpha_at, overlap_matrix, patch_average, patch_quadrature, reconstruct
 from .progress import StageCallback, report_stage
@@ -61,10 +61,10 @@ class SolveSettings:
     bake_samples: int = 64
     min_rays: int = 1 << 22
     gather_rays: int = 256
-    # Off by default: on the Cornell box it takes room-edge vertices from 7.1 % to 3.5 % rel. RMS, but
-    # on the textured floor neighbouring vertices' light then differs by up to 7 % (their near hits'
-    # second gathers do not agree); see ARCHITECTURE.md.
-    near_field: bool = False
+    # Gather hits closer than a patch radius get their direct light computed where they land
+    # (gather.NearField): Cornell box, 2 000 box patches, 256 rays, every vertex: 1.86 -> 1.65 %
+    # relative RMS, vertices within 5 mm of another object +2.7 -> +1.6 % bias; bake time +30 %.
+    near_field: bool = True
     sky_samples: int = 256
     bake_sky_samples: int = 1024
 
@@ -415,7 +415,12 @@ def _at_points(
         else:
             near = None
             if light.near_field:
-                near = NearField(replace(light, samples=min(light.samples, NEAR_LIGHT_SAMPLES)), coeffs - own)
+                near_light = replace(
+                    light,
+                    samples=min(light.samples, NEAR_LIGHT_SAMPLES),
+                    sky_samples=min(light.sky_samples, NEAR_SKY_SAMPLES),
+                )
+                near = NearField(near_light, radiosity - first_shot - coeffs, coeffs - own)
             at = pts if gather_points is None else np.asarray(gather_points, np.float64).reshape(-1, 3)
             H = H + gather_unique(problem, radiosity, own, at, normals, light.gather_rays, tri, near=near)
         covered = index.sheet_of(tri, side) >= 0
