@@ -59,7 +59,7 @@ class SolveSettings:
     light_samples: int = 16
     smoothing: float = 0.1
     bake_samples: int = 64
-    min_rays: int = 1 << 22
+    min_rays: int = 1 << 20
     gather_rays: int = 256
     # Gather hits closer than a patch radius get their direct light computed where they land
     # (gather.NearField): Cornell box, 2 000 box patches, 256 rays, every vertex: 1.86 -> 1.65 %
