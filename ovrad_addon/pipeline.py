@@ -202,8 +202,13 @@ def prepare(
     quadrature: int = 12,
     progress: StageCallback | None = None,
     backend: str = "auto",
+    drop_unsupported: bool = False,
 ) -> Problem:
-    """Sheets, the overlap matrix C (fine rule of `quadrature`) and the transport R for an atlas."""
+    """Sheets, the overlap matrix C (fine rule of `quadrature`) and the transport R for an atlas.
+
+    drop_unsupported: patches whose support holds no surface are removed from the problem's atlas
+    (refine.py's children off a sheet's border); by default the atlas is kept as given, patch for
+    patch (the operators write results back to it)."""
     if len(atlas) == 0:
         raise OvradError("the atlas has no patches: generate an atlas first")
     seconds = {}
@@ -220,6 +225,9 @@ def prepare(
         quadrature,
         progress=lambda f: report_stage(progress, 0.05 + 0.35 * f, "integrating overlaps"),
     )
+    if drop_unsupported and np.any(support <= 0):
+        keep = np.flatnonzero(support > 0)
+        atlas, C, support = atlas.select(keep), C.tocsr()[keep][:, keep], support[keep]
     atlas = replace(atlas, support_area=support, effective_area=C.diagonal().copy())
     seconds["overlap"] = time.perf_counter() - t0
     t0 = time.perf_counter()

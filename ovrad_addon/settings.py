@@ -49,7 +49,7 @@ class AtlasSettings:
     patch_size: float | None = None
     patch_count: int = 2000
     overlap: float = 1.3
-    beta: str = "box"
+    beta: str = "smooth"
     shapes: str = "AUTO"
     max_patches: int = 200_000
     quadrature: int = 12

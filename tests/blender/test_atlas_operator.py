@@ -91,7 +91,7 @@ def test_generate_on_cube_makes_one_atlas_object_with_every_attribute(scene):
     select(cube)
     assert bpy.ops.ovrad.generate_atlas() == {"FINISHED"}
     (atlas,) = atlases()
-    assert atlas["ovrad_source"] == "Cube" and atlas["ovrad_beta"] == "box"
+    assert atlas["ovrad_source"] == "Cube" and atlas["ovrad_beta"] == "smooth"
     assert [c.name for c in atlas.users_collection] == ["ovrad"]
     assert "ovrad" in [c.name for c in scene.collection.children]
     mesh = atlas.data
@@ -123,7 +123,7 @@ def test_atlas_attributes_survive_save_and_reload(scene, tmp_path):
     assert atlases() == []
     bpy.ops.wm.open_mainfile(filepath=path)
     (atlas,) = atlases("Cube")
-    assert atlas["ovrad_beta"] == "box"
+    assert atlas["ovrad_beta"] == "smooth"
     assert np.array_equal(positions(atlas.data), before_co)
     for name, values in before.items():
         assert np.array_equal(attribute(atlas.data, name), values), name

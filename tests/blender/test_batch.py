@@ -65,7 +65,7 @@ def test_vertex_bake_saves_attributes_report_and_picture(ovrad, run_blender, tmp
     assert r["ovrad"] == blender_env.module_name()  # the installed extension did the work
     assert r["receivers"] == MESHES and 150 <= r["patches"] <= 300
     assert r["rays"] > 100_000 and 0 <= r["unshot_fraction"] <= r["tolerance"] == pytest.approx(1e-3)
-    assert r["solver"] == "exact" and r["beta"] == "box" and r["converged"] is True
+    assert r["solver"] == "exact" and r["beta"] == "smooth" and r["converged"] is True
     assert set(r["seconds"]) == {"generate", "solve", "bake", "save", "picture", "total"}
     assert r["output"] == str(out) and r["input"] == str(CORNELL)
     assert picture.stat().st_size > 1000

@@ -91,7 +91,7 @@ def test_panel_shows_settings_generate_and_the_active_objects_overrides(ovrad, f
     labels = [text for kind, text in draw_panel(ovrad) if kind == "label"]
     n = len(atlas.data.vertices)
     assert f"{n:,} patches in 1 atlas object(s)" in labels
-    assert f"{atlas.name}: {n:,} patches, beta box" in labels
+    assert f"{atlas.name}: {n:,} patches, beta smooth" in labels
 
 
 def test_quality_sets_its_levels_settings_and_shows_custom_once_one_is_changed(ovrad, fresh_scene):

@@ -1,0 +1,83 @@
+"""Adaptive patches (ovrad_addon/refine.py) against uniform ones on the Cornell box, every vertex scored.
+
+Run (a few minutes on 2 cores):
+    scripts/blender -b --python-exit-code 1 -P benchmarks/refine_bench.py -- [--scene cornell|lamps]
+
+For each atlas (a patch count, then 0-3 refinement passes) the solve is scored two ways against the
+stored 4 096-sample Cycles reference: the paper's reconstruction from the patches alone (direct
+light included: --direct patches) and the default bake (direct light at the vertices, 256-ray final
+gather with the near field). Seconds cover generate, prepare (C and transport) and solve of every
+pass, and the reconstruction. Writes benchmarks/results/refine[_<scene>].csv.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import importlib
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+import make_reference  # noqa: E402  (benchmarks/ is not a package)
+import speed_vs_error  # noqa: E402
+
+import scenes  # noqa: E402
+
+RUNS = [(1000, 0), (1000, 1), (1000, 2), (1000, 3), (2000, 0), (4000, 0)]
+
+
+def main(argv: list[str]) -> int:
+    p = argparse.ArgumentParser(prog="refine_bench.py", description=__doc__.split("\n")[0])
+    p.add_argument("--scene", choices=("cornell", "lamps"), default="cornell")
+    a = p.parse_args(argv)
+    ref = make_reference.load(HERE / "reference" / f"{a.scene}_4096.npz")
+    scene = scenes.open_cornell(ref["meta"]["spacing_m"], lamps=a.scene == "lamps")
+    receivers = scenes.receivers(scene)
+    *read, _ = speed_vs_error.read_scene(scene, receivers, len(ref["positions"]))
+    surfaces, lamps, read_s, points, tri = read
+    speed_vs_error.ovrad_package()
+    atlas_mod, pipeline, refine, settings_mod = (
+        importlib.import_module(f"ovrad.ovrad_addon.{m}") for m in ("atlas", "pipeline", "refine", "settings")
+    )
+    rows = []
+    for count, passes in RUNS:
+        t = time.perf_counter()
+        atlas = atlas_mod.build_atlas(surfaces, settings_mod.AtlasSettings(patch_count=count))
+        settings = pipeline.SolveSettings()
+        problem, state, replaced = refine.solve_adaptive(surfaces, atlas, lamps, settings, passes=passes)
+        solve_s = time.perf_counter() - t
+        for direct in ("patches", "points"):
+            t = time.perf_counter()
+            if direct == "points":
+                light = pipeline.direct_light(problem, lamps, settings)
+                L = pipeline.radiance_at(problem, state.radiosity, points, tri, 1, state.first_shot, light)
+            else:
+                L = pipeline.radiance_at(problem, state.radiosity, points, tri, 1)
+            rec_s = time.perf_counter() - t
+            err = scenes.relative_rms(L, ref["radiance"], ref["scored"])
+            row = dict(
+                scene=a.scene,
+                patches=len(atlas),
+                passes=passes,
+                replaced=" ".join(map(str, replaced)),
+                refined_patches=len(problem.atlas),
+                direct=direct,
+                seconds=round(read_s + solve_s + rec_s, 2),
+                error=round(err, 5),
+            )
+            rows.append(row)
+            print("refine_bench:", row, flush=True)
+    out = HERE / "results" / ("refine.csv" if a.scene == "cornell" else f"refine_{a.scene}.csv")
+    with open(out, "w", newline="") as fh:
+        w = csv.DictWriter(fh, list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    print(f"refine_bench: wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[sys.argv.index("--") + 1 :] if "--" in sys.argv else []))
