@@ -1,14 +1,15 @@
 """Adaptive patches: smaller patches where a solution varies, large ones where it does not.
 
 Overlapping supports make refinement local (the paper names it as future work): a patch is
-replaced by four children covering its support, and nothing else changes. No remeshing, no
+replaced by five children covering its support, and nothing else changes. No remeshing, no
 constraint between neighbours: alpha is recomputed from memberships, so the partition of unity and
 the reciprocity of the transport hold as on any atlas.
 
 - A disk of radius r is covered by the four disks of radius r / sqrt(2) centred at
   (+-r/2, +-r/2) in its tangent frame (each covers one quadrant of its bounding square); a square
   of half side a by the four squares of half side a/2 tiling it. So every point the parent held is
-  held by a child: coverage stays whole.
+  held by a child: coverage stays whole. The parent's centre lies on all four rims, where smooth
+  beta is zero: a fifth child of radius r/2 sits there, so every point has a child with beta > 0.
 - Children lie on the parent's sheet (same plane, normal, triangle and side); those whose support
   holds none of the sheet (a border square's quadrant off the surface) get no area and are dropped.
 - A patch cut by a contact line was split into pieces with one anchor each (contact.py): the
@@ -29,6 +30,7 @@ import numpy as np
 from .atlas import Atlas
 from .contact import split_at_contacts
 from .names import SHAPE_BALL, SHAPE_SQUARE
+from .overlap import neighbour_pairs
 
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 FLOOR = 0.1  # of the mean luminance: differences below it in dark regions do not refine
@@ -37,16 +39,20 @@ THRESHOLD = 0.6  # refine patches whose indicator exceeds this...
 BUDGET = 0.2  # ... at most this share of the patches per pass, the largest indicators first
 
 
-def indicator(atlas: Atlas, C, radiosity: np.ndarray) -> np.ndarray:
-    """(n,) largest relative radiosity difference between each patch and the patches it overlaps
-    (the off-diagonal pattern of C)."""
+def indicator(atlas: Atlas, radiosity: np.ndarray, C=None) -> np.ndarray:
+    """(n,) largest relative radiosity difference between each patch and the patches it overlaps:
+    C's off-diagonal pattern, or without C the same-sheet pairs whose bounding balls meet."""
     L = np.asarray(radiosity, np.float64).reshape(len(atlas), -1) @ LUMINANCE[: np.shape(radiosity)[-1]]
     w = np.asarray(atlas.effective_area, np.float64)
-    mean = float(np.sum(w * L) / max(np.sum(w), 1e-300))
+    mean = float(np.sum(w * L) / max(np.sum(w), 1e-300)) if np.sum(w) > 0 else float(np.mean(L))
     floor = FLOOR * max(mean, 1e-300)
-    pairs = C.tocoo()
-    off = pairs.row != pairs.col
-    i, j = pairs.row[off], pairs.col[off]
+    if C is not None:
+        pairs = C.tocoo()
+        i, j = pairs.row, pairs.col
+    else:
+        i, j = neighbour_pairs(atlas)
+    off = i != j
+    i, j = i[off], j[off]
     d = np.abs(L[i] - L[j]) / (0.5 * (L[i] + L[j]) + floor)
     out = np.zeros(len(atlas))
     np.maximum.at(out, i, d)
@@ -68,11 +74,11 @@ def _groups(atlas: Atlas) -> np.ndarray:
 
 
 def children(atlas: Atlas, parents: np.ndarray) -> Atlas:
-    """The four children of each patch in `parents` (indices of one patch per disk or square), with
+    """The five children of each patch in `parents` (indices of one patch per disk or square), with
     no anchor (found again) and no areas yet."""
     p = np.asarray(parents, np.int64)
-    sign = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]], float)
-    q = np.repeat(p, 4)
+    sign = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1], [0, 0]], float)
+    q = np.repeat(p, len(sign))
     s = np.tile(sign, (len(p), 1))
     r = atlas.radii[q]
     square = atlas.shapes[q] == SHAPE_SQUARE
@@ -81,6 +87,8 @@ def children(atlas: Atlas, parents: np.ndarray) -> Atlas:
         s[:, :1] * atlas.tangents[q] + s[:, 1:] * atlas.bitangents[q]
     )
     radii = np.where(square, 0.5 * r, r / np.sqrt(2.0))
+    middle = np.all(s == 0, axis=1)
+    radii = np.where(middle, 0.5 * r, radii)
     k = len(q)
     extent_part = atlas.thickness[q] - 1e-3 * r  # the scene-extent share placement added
     return Atlas(
@@ -107,24 +115,27 @@ def children(atlas: Atlas, parents: np.ndarray) -> Atlas:
 def refine(
     atlas: Atlas,
     index,
-    C,
     radiosity: np.ndarray,
     threshold: float = THRESHOLD,
     budget: float = BUDGET,
     smallest: float | None = None,
+    C=None,
+    only: np.ndarray | None = None,
 ) -> tuple[Atlas, int]:
     """The atlas with its most varying patches (indicator above `threshold`, at most `budget` x n of
-    them, largest indicator first) each replaced by four children; and how many were replaced.
+    them, largest indicator first) each replaced by five children; and how many were replaced.
 
-    atlas and C as solved (sheets attached to `index`); smallest: the least radius a refined patch
-    may have (default MIN_SCALE x the median radius). The result has no areas yet: integrate C
-    again (pipeline.prepare) before solving; children without support are dropped there."""
+    atlas as solved (sheets attached to `index`), C its overlap matrix if at hand (else its
+    neighbour pairs are searched); smallest: the least radius a refined patch may have (default
+    MIN_SCALE x the median radius); only: (n,) bool, the patches that may be refined (default all).
+    The result has no areas yet: integrate C again (pipeline.prepare with drop_unsupported, or
+    atlas.finish_atlas) before solving; children without support are dropped there."""
     n = len(atlas)
     if smallest is None:
         smallest = MIN_SCALE * float(np.median(atlas.radii)) * np.sqrt(2.0)
-    score = indicator(atlas, C, radiosity)
+    score = indicator(atlas, radiosity, C)
     group = _groups(atlas)
-    ok = refinable(atlas, index, smallest)
+    ok = refinable(atlas, index, smallest) & (True if only is None else np.asarray(only, bool))
     # a disk's pieces refine together: the group's score is its pieces' largest
     g_score = np.zeros(group.max() + 1 if n else 0)
     np.maximum.at(g_score, group, np.where(ok, score, 0.0))
@@ -171,7 +182,7 @@ def solve_adaptive(
     replaced = []
     for _ in range(passes):
         finer, k = refine(
-            problem.atlas, problem.index, problem.C, state.radiosity, threshold, budget, smallest
+            problem.atlas, problem.index, state.radiosity, threshold, budget, smallest, problem.C
         )
         replaced.append(k)
         if k == 0:
