@@ -4,8 +4,9 @@ uses it instead of integrating it again.
 C is block diagonal over atlas objects (patches overlap only on their own sheet, and a sheet lies on
 one object), and a patch's row of C depends on that patch and its sheet's patches around it only
 (overlap.overlap_matrix), so each atlas object keeps its own block: its off-diagonal entries on mesh
-edges between overlapping patches, (c_ij, c_ji) for the edge (i, j), i < j, and its diagonal c_kk
-as the patches' effective areas. Values are float32, as every attribute: the solve moves by about
+edges between overlapping patches, (C[i, j], C[j, i]) for the edge (i, j), i < j (C[h, k] = c_kh, the
+integral of alpha_k over D_h: C is not symmetric), and its diagonal c_kk as the patches' effective
+areas. Values are float32, as every attribute: the solve moves by about
 1e-8 of its radiosity (Cornell box), far below its noise. The support areas A_h are taken again as
 the row sums of the C read back, so sum_i c_ih = A_h holds exactly, as the solver expects.
 
@@ -37,7 +38,7 @@ RULE_VERSION = 1
 class KeptOverlaps:
     """The block of C of `count` patches of an atlas, from patch `start` on (one atlas object), as a
     file keeps it: edges (m, 2) int32 patch pairs i < j within the block, values (m, 2) float32
-    (c_ij, c_ji), diagonal (count,) float32 c_kk, and key, the overlap_key() it was stored with."""
+    (C[i, j], C[j, i]), diagonal (count,) float32 c_kk, and key, the overlap_key() it was stored with."""
 
     start: int
     count: int

@@ -20,7 +20,7 @@ RADIOSITY = "ovrad_radiosity"  # FLOAT_COLOR, solved radiance B/pi
 DIRECT = "ovrad_direct"  # FLOAT_COLOR, the first shot's share of it (direct light of lamps and emitters)
 
 # EDGE attribute on an atlas object: one edge between each two overlapping patches (kept_overlaps.py).
-OVERLAP_C = "ovrad_c"  # FLOAT2, (c_ij, c_ji) of the edge's first vertex i and second vertex j
+OVERLAP_C = "ovrad_c"  # FLOAT2, (C[i, j], C[j, i]) of the edge's vertices i < j (overlap.overlap_matrix's C)
 
 # Custom properties on the atlas object.
 PROP_SOURCE = "ovrad_source"  # name of the source mesh object
