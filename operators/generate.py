@@ -11,7 +11,7 @@ from bpy.props import EnumProperty
 
 from ..ovrad_addon.atlas import build_atlas_and_overlaps
 from ..ovrad_addon.errors import OvradError
-from ..ovrad_addon.kept_overlaps import keep
+from ..ovrad_addon.kept_overlaps import keep, object_keys
 from . import attributes, display, properties, scene_io, scene_model
 
 
@@ -72,14 +72,14 @@ class OVRAD_OT_generate_atlas(bpy.types.Operator):
         except OvradError as e:
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
-        parts = []
+        parts, world = [], object_keys(meshes.surfaces)
         for i, obj in enumerate(meshes.objects[: meshes.n_receivers]):
             sel = np.flatnonzero(atlas.source_object == i)
             part = atlas.select(sel)
             # its block of C, kept on the atlas object so a solve need not integrate it again
             kept = None
             if len(sel):
-                kept = keep(meshes.surfaces, part, C[sel][:, sel], settings.quadrature, settings.crease_angle)
+                kept = keep(world, part, C[sel][:, sel], settings.quadrature, settings.crease_angle)
             parts.append((obj.name, part, kept))
         for w in meshes.warnings:
             self.report({"WARNING"}, w)

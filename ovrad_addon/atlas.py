@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 
 from . import clutter as clutter_mod
 from . import names
-from .contact import split_at_contacts
+from .contact import carry_over, split_at_contacts
 from .errors import OvradError
 from .placement import Placed, place_curved, place_planar, place_planar_small
 from .progress import StageCallback, report_stage
@@ -555,7 +555,8 @@ def build_atlas_and_overlaps(
         near = np.zeros(len(atlas), bool)
         near[h[dropped[i]]] = True
         keep = np.flatnonzero(~dropped)
-        atlas = atlas.select(keep)
+        before, atlas = atlas, atlas.select(keep)
+        carry_over(before, index, keep, atlas)
         C = C[keep][:, keep]
         support = support[keep]
         redo = np.flatnonzero(near[keep])

@@ -131,10 +131,16 @@ def overlap_key(
 
 
 def keep(
-    surfaces: Surfaces, atlas: Atlas, C: csr_matrix, quadrature: int, crease_angle: float, start: int = 0
+    surfaces: Surfaces | list[bytes],
+    atlas: Atlas,
+    C: csr_matrix,
+    quadrature: int,
+    crease_angle: float,
+    start: int = 0,
 ) -> KeptOverlaps:
     """The block C (len(atlas) square) of `atlas` (as stored, one atlas object's patches; start: the
-    position of its first patch in the atlas a solve concatenates) ready to be kept, with its key."""
+    position of its first patch in the atlas a solve concatenates) ready to be kept, with its key.
+    surfaces: or their object_keys() (computed once for many blocks)."""
     edges, values, diagonal = kept_form(C)
     key = overlap_key(surfaces, atlas, edges, values, diagonal, quadrature, crease_angle)
     return KeptOverlaps(start, len(atlas), key, edges, values, diagonal)
