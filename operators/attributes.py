@@ -4,7 +4,6 @@ objects' POINT attributes, baked colours and their ownership marks), each write 
 from __future__ import annotations
 
 import hashlib
-from dataclasses import replace
 
 import bpy
 import numpy as np
@@ -12,6 +11,7 @@ import numpy as np
 from ..ovrad_addon import names
 from ..ovrad_addon.atlas import Atlas
 from ..ovrad_addon.errors import OvradError
+from ..ovrad_addon.kept_overlaps import KeptOverlaps
 
 ATLAS_VERSION = 1
 ATLAS_SUFFIX = "_ovrad_atlas"
@@ -22,6 +22,7 @@ _LAYOUT = {
     "INT": ("value", 1, np.int32),
     "FLOAT_VECTOR": ("vector", 3, np.float32),
     "FLOAT_COLOR": ("color", 4, np.float32),
+    "FLOAT2": ("vector", 2, np.float32),
 }
 
 
@@ -158,23 +159,61 @@ def read_point_attribute(mesh, name: str) -> np.ndarray:
     return out if comps == 1 else out.reshape(-1, comps)
 
 
-def _atlas_mesh(name: str, atlas: Atlas) -> bpy.types.Mesh:
+def read_attribute(mesh, name: str) -> np.ndarray:
+    """One attribute of any domain as (n,) or (n, k); raises KeyError if missing."""
+    attr = mesh.attributes[name]
+    key, comps, dtype = _LAYOUT[attr.data_type]
+    out = np.empty(len(attr.data) * comps, dtype)
+    attr.data.foreach_get(key, out)
+    return out if comps == 1 else out.reshape(-1, comps)
+
+
+def _atlas_mesh(name: str, atlas: Atlas, kept: KeptOverlaps | None = None) -> bpy.types.Mesh:
+    """A new mesh holding the atlas: a point per patch, and with `kept`, the C of its patches (an edge
+    between each two that overlap, their diagonal being the patches' effective areas)."""
+    if kept is not None and not np.array_equal(kept.diagonal, np.asarray(atlas.effective_area, np.float32)):
+        raise AttributeLayoutError("the kept overlaps' diagonal is not the atlas's effective areas")
     mesh = bpy.data.meshes.new(name)
     mesh.vertices.add(len(atlas))
     mesh.vertices.foreach_set("co", np.ascontiguousarray(atlas.centers, np.float32).ravel())
     for attr_name, (values, kind) in atlas.point_attributes().items():
         write_point_attribute(mesh, attr_name, values, kind)
+    if kept is not None:
+        mesh.edges.add(len(kept.edges))
+        mesh.edges.foreach_set("vertices", np.ascontiguousarray(kept.edges, np.int32).ravel())
+        write_attribute(mesh, names.OVERLAP_C, kept.values, "FLOAT2", "EDGE")
+        mesh[names.PROP_OVERLAP_KEY] = kept.key
     mesh.update()
     return mesh
 
 
-def write_atlas(scene, source: str, atlas: Atlas) -> bpy.types.Object:
-    """Create, or replace the mesh of, the one atlas object of `source`; returns it.
+def read_kept(obj, start: int) -> KeptOverlaps | None:
+    """The overlaps kept on an atlas object's edges (None: it keeps none), for a solve whose atlas
+    has the object's patches from position `start` on. Whether they still fit is the engine's
+    to decide (kept_overlaps.usable)."""
+    mesh = obj.data
+    key = mesh.get(names.PROP_OVERLAP_KEY)
+    attr = mesh.attributes.get(names.OVERLAP_C)
+    if not isinstance(key, str) or attr is None or attr.domain != "EDGE" or attr.data_type != "FLOAT2":
+        return None
+    if names.AREA not in mesh.attributes:
+        return None
+    edges = np.empty(2 * len(mesh.edges), np.int32)
+    mesh.edges.foreach_get("vertices", edges)
+    diagonal = read_point_attribute(mesh, names.AREA)
+    return KeptOverlaps(
+        start, len(mesh.vertices), key, edges.reshape(-1, 2), read_attribute(mesh, names.OVERLAP_C), diagonal
+    )
+
+
+def write_atlas(scene, source: str, atlas: Atlas, kept: KeptOverlaps | None = None) -> bpy.types.Object:
+    """Create, or replace the mesh of, the one atlas object of `source`; returns it. kept: the C
+    of its patches, kept on the mesh (kept_overlaps.py).
 
     Only objects carrying our source property are touched; a user object that merely has a
     similar name is left alone (the new object then gets Blender's .001-style name).
     """
-    mesh = _atlas_mesh(source + ATLAS_SUFFIX, atlas)
+    mesh = _atlas_mesh(source + ATLAS_SUFFIX, atlas, kept)
     existing = atlas_objects(source)
     if existing:
         obj = existing[0]
@@ -205,18 +244,8 @@ def remove_atlas(obj) -> None:
         bpy.data.meshes.remove(mesh)
 
 
-def _from_stored(centers: np.ndarray, attrs: dict, beta: str) -> Atlas:
-    # Points are written in world space with an identity matrix; the matrix is ignored on purpose, as
-    # a moved atlas object no longer matches its surfaces anyway.
-    attrs = dict(attrs)
-    for key in (names.NORMAL, names.TANGENT):
-        v = attrs[key].astype(np.float64)
-        attrs[key] = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-30)
-    return Atlas.from_point_attributes(centers.reshape(-1, 3).astype(np.float64), attrs, beta=beta)
-
-
 def read_atlas(obj) -> Atlas:
-    """An atlas object back into engine arrays (float32 in the file: unit vectors are renormalised)."""
+    """An atlas object back into engine arrays (the file's float32 values, widened)."""
     if not is_atlas(obj):
         raise ValueError(f"{obj.name} is not an ovrad atlas object")
     mesh = obj.data
@@ -224,17 +253,13 @@ def read_atlas(obj) -> Atlas:
     co = np.empty(3 * n, np.float32)
     mesh.vertices.foreach_get("co", co)
     attrs = {
-        a.name: read_point_attribute(mesh, a.name) for a in mesh.attributes if a.name.startswith("ovrad_")
+        a.name: read_point_attribute(mesh, a.name)
+        for a in mesh.attributes
+        if a.name.startswith("ovrad_") and a.domain == "POINT"
     }
-    return _from_stored(co, attrs, str(obj.get(names.PROP_BETA, "smooth")))
-
-
-def as_stored(atlas: Atlas) -> Atlas:
-    """The atlas exactly as read_atlas() will read it back once written (float32 values), so a
-    solve of a new atlas and a bake of the stored one see the same patches."""
-    attrs = {k: np.asarray(v, _LAYOUT[kind][2]) for k, (v, kind) in atlas.point_attributes().items()}
-    out = _from_stored(np.asarray(atlas.centers, np.float32), attrs, atlas.beta)
-    return replace(out, source_object=atlas.source_object)
+    # Points are written in world space with an identity matrix; the matrix is ignored on purpose, as
+    # a moved atlas object no longer matches its surfaces anyway.
+    return Atlas.from_point_attributes(co, attrs, beta=str(obj.get(names.PROP_BETA, "smooth")))
 
 
 def is_environment(obj) -> bool:
@@ -247,10 +272,11 @@ def environment_object(scene):
     return next((o for o in scene.objects if is_environment(o)), None)
 
 
-def write_environment(scene, atlas: Atlas, key: str) -> bpy.types.Object:
+def write_environment(scene, atlas: Atlas, key: str, kept: KeptOverlaps | None = None) -> bpy.types.Object:
     """Create, or replace the mesh of, the scene's one environment atlas object (hidden, in the
-    ovrad collection), marked with the fingerprint `key` of the surfaces it was built from."""
-    mesh = _atlas_mesh(names.ENVIRONMENT, atlas)
+    ovrad collection), marked with the fingerprint `key` of the surfaces it was built from; kept:
+    the C of its patches."""
+    mesh = _atlas_mesh(names.ENVIRONMENT, atlas, kept)
     obj = environment_object(scene)
     if obj is None:
         obj = bpy.data.objects.new(names.ENVIRONMENT, mesh)

@@ -10,8 +10,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..ovrad_addon import names
-from ..ovrad_addon.atlas import Atlas, build_atlas
+from ..ovrad_addon.atlas import Atlas, build_atlas_and_overlaps
 from ..ovrad_addon.errors import OvradError
+from ..ovrad_addon.kept_overlaps import KeptOverlaps, keep
 from ..ovrad_addon.settings import AtlasSettings, ObjectSettings
 from ..ovrad_addon.surfaces import Surfaces, triangle_geometry
 from . import attributes
@@ -35,13 +36,15 @@ class Environment:
     atlas: its patches (source_object: the surfaces object each lies on, -1 when an older stored
     atlas does not say) or None when nothing lacks an atlas (or it could not
     be built); key: fingerprint of what it covers; new: built now, to be written when the solve
-    finishes; name: the atlas object holding it (names.ENVIRONMENT until a new one is written).
+    finishes; name: the atlas object holding it (names.ENVIRONMENT until a new one is written);
+    kept: the C of its patches, as integrated when it was built or kept on its object (None: none).
     """
 
     atlas: Atlas | None
     key: str
     new: bool = False
     name: str = ""
+    kept: KeptOverlaps | None = None
 
 
 def receiver_spacing(atlas: Atlas) -> float:
@@ -94,18 +97,22 @@ def plan(
             owner = attributes.read_point_attribute(stored.data, names.OBJECT).astype(np.int64)
         else:
             owner = np.full(len(atlas), -1, np.int64)  # located by search (pipeline.attach_sheets)
-        return Environment(replace(atlas, source_object=owner), key, name=stored.name)
+        kept = attributes.read_kept(stored, len(receivers))
+        return Environment(replace(atlas, source_object=owner), key, name=stored.name, kept=kept)
     if not build:
         raise OvradError(
             "the meshes without an atlas of their own (they reflect light too) changed since the last "
             "solve: press Solve again before baking"
         )
     try:
-        atlas = build_atlas(replace(surfaces, receiver=env), settings)
+        atlas, C = build_atlas_and_overlaps(replace(surfaces, receiver=env), settings)
     except OvradError as e:
         warnings.append(f"the meshes without an atlas only cast shadows in this solve: {e}")
         return Environment(None, key)
-    return Environment(attributes.as_stored(atlas), key, new=True, name=names.ENVIRONMENT)
+    atlas = atlas.as_stored()
+    # its C, integrated just now: this solve uses it, and the file keeps it for the next ones
+    kept = keep(surfaces, atlas, C, settings.quadrature, settings.crease_angle, start=len(receivers))
+    return Environment(atlas, key, new=True, name=names.ENVIRONMENT, kept=kept)
 
 
 def store(scene, environment: Environment) -> str:
@@ -117,7 +124,7 @@ def store(scene, environment: Environment) -> str:
             attributes.remove_atlas(stored)
         return ""
     if environment.new:
-        stored = attributes.write_environment(scene, environment.atlas, environment.key)
+        stored = attributes.write_environment(scene, environment.atlas, environment.key, environment.kept)
         environment.new = False
     environment.name = stored.name
     return stored.name

@@ -6,10 +6,12 @@ import time
 from contextlib import contextmanager
 
 import bpy
+import numpy as np
 from bpy.props import EnumProperty
 
-from ..ovrad_addon.atlas import build_atlas
+from ..ovrad_addon.atlas import build_atlas_and_overlaps
 from ..ovrad_addon.errors import OvradError
+from ..ovrad_addon.kept_overlaps import keep, object_keys
 from . import attributes, display, properties, scene_io, scene_model
 
 
@@ -55,7 +57,9 @@ class OVRAD_OT_generate_atlas(bpy.types.Operator):
     def execute(self, context):
         start = time.perf_counter()
         scene = context.scene
-        selected = list(context.selected_objects)
+        # In the order a solve reads the atlases' meshes (by atlas name): the same triangle order, so
+        # the same ray hits where faces coincide, and the C integrated here is the one a solve would
+        selected = sorted(context.selected_objects, key=lambda o: o.name + attributes.ATLAS_SUFFIX)
         active = context.view_layer.objects.active
         # Everything that can fail runs before the first write, so an error leaves the file as it was.
         try:
@@ -64,20 +68,25 @@ class OVRAD_OT_generate_atlas(bpy.types.Operator):
             meshes = scene_io.read_scene(depsgraph, selected, model.others(selected), model)
             settings = properties.atlas_settings(scene.ovrad, meshes.objects)
             with _progress(context) as progress:
-                atlas = build_atlas(meshes.surfaces, settings, progress=progress)
+                atlas, C = build_atlas_and_overlaps(meshes.surfaces, settings, progress=progress)
         except OvradError as e:
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
-        parts = [
-            (obj.name, atlas.select(atlas.source_object == i))
-            for i, obj in enumerate(meshes.objects[: meshes.n_receivers])
-        ]
+        parts, world = [], object_keys(meshes.surfaces)
+        for i, obj in enumerate(meshes.objects[: meshes.n_receivers]):
+            sel = np.flatnonzero(atlas.source_object == i)
+            part = atlas.select(sel)
+            # its block of C, kept on the atlas object so a solve need not integrate it again
+            kept = None
+            if len(sel):
+                kept = keep(world, part, C[sel][:, sel], settings.quadrature, settings.crease_angle)
+            parts.append((obj.name, part, kept))
         for w in meshes.warnings:
             self.report({"WARNING"}, w)
-        for name, part in parts:
+        for name, part, kept in parts:
             if len(part) == 0:
                 self.report({"WARNING"}, f"'{name}' got no patches (no face of it can be covered)")
-            obj = attributes.write_atlas(scene, name, part)
+            obj = attributes.write_atlas(scene, name, part, kept)
             display.ensure_modifier(obj, part.beta)
             display.set_quantity(obj, scene.ovrad.display_quantity)
         # New objects are not selected, but keep the user's selection exactly as it was regardless.

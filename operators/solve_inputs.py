@@ -12,6 +12,7 @@ import numpy as np
 from ..ovrad_addon import names
 from ..ovrad_addon.atlas import Atlas
 from ..ovrad_addon.errors import OvradError
+from ..ovrad_addon.kept_overlaps import KeptOverlaps
 from ..ovrad_addon.lights import Lamp
 from ..ovrad_addon.pipeline import SolveSettings
 from ..ovrad_addon.sky import Sky
@@ -27,7 +28,7 @@ class SolveInputs:
     len(sources) objects of surfaces are the source meshes of the first len(sources) atlas
     objects, in the same order; the rest of surfaces (everything else that renders) is covered
     by the environment atlas, last in atlas_names when there is one. sky: the world's light
-    (None: none).
+    (None: none). kept: the blocks of C the atlas objects keep (the engine uses those that fit).
     """
 
     surfaces: Surfaces
@@ -41,6 +42,7 @@ class SolveInputs:
     warnings: list[str] = field(default_factory=list)
     environment: environment.Environment | None = None
     sky: Sky | None = None
+    kept: list[KeptOverlaps] = field(default_factory=list)
 
     def first_triangle(self, i: int) -> int:
         """Index in surfaces.triangles of receiver i's first triangle."""
@@ -168,9 +170,12 @@ def read_inputs(context, settings: SolveSettings | None = None, need_light: bool
                 warnings.append(f"'{src.name}' has no faces: its atlas '{obj.name}' is skipped")
         pairs = [p for p in pairs if p[1] in kept]
         sources = [src for _, src in pairs]
-    parts = []
+    parts, kept = [], []
     for i, (obj, _) in enumerate(pairs):
         a = attributes.read_atlas(obj)
+        k = attributes.read_kept(obj, sum(len(p) for p in parts))
+        if k is not None:
+            kept.append(k)
         parts.append(replace(a, source_object=np.full(len(a), i, np.int64)))
     receivers = Atlas.concatenate(parts)
     warnings += meshes.warnings
@@ -183,6 +188,8 @@ def read_inputs(context, settings: SolveSettings | None = None, need_light: bool
         atlas = Atlas.concatenate([receivers, env.atlas])
         atlas_names.append(env.name)
         counts.append(len(env.atlas))
+        if env.kept is not None:
+            kept.append(env.kept)
     lamps, sky = model.lamps, model.world
     warnings += model.warnings
     if need_light:
@@ -199,4 +206,5 @@ def read_inputs(context, settings: SolveSettings | None = None, need_light: bool
         warnings=list(dict.fromkeys(warnings)),
         environment=env,
         sky=sky,
+        kept=kept,
     )

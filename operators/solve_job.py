@@ -93,7 +93,9 @@ class SolveJob:
 
     def stats(self) -> dict:
         """What a finished solve did (empty before it has a state): rays, transport_rays,
-        form_factors_reused, shots, unshot_fraction, converged."""
+        form_factors_reused, overlaps_kept (patches whose C was kept with the atlas, not integrated),
+        prepare_seconds (per stage of prepare(): index, overlap, transport; empty when the form
+        factors were reused), shots, unshot_fraction, converged."""
         st = self.state
         if st is None:
             return {}
@@ -101,6 +103,8 @@ class SolveJob:
             "rays": int(st.rays),
             "transport_rays": int(self.problem.rays),
             "form_factors_reused": bool(self.reused),
+            "overlaps_kept": int(self.problem.kept),
+            "prepare_seconds": {} if self.reused else dict(self.problem.seconds),
             "shots": int(st.shots),
             "unshot_fraction": unshot_fraction(st),
             "converged": bool(st.converged),
@@ -137,7 +141,11 @@ class SolveJob:
                     return self._update(f"form factors ({message})", weight * f)
 
                 self.problem = prepare(
-                    self.inputs.surfaces, self.inputs.atlas, self.inputs.settings, progress=on_prepare
+                    self.inputs.surfaces,
+                    self.inputs.atlas,
+                    self.inputs.settings,
+                    progress=on_prepare,
+                    kept=getattr(self.inputs, "kept", ()),
                 )
             self.state = st = self._solve(self.problem, weight)
             if st.converged:

@@ -7,11 +7,12 @@ from dataclasses import fields as dataclass_fields
 from functools import cached_property
 
 import numpy as np
+from scipy.sparse import csr_matrix, diags
 from scipy.spatial import cKDTree
 
 from . import clutter as clutter_mod
 from . import names
-from .contact import split_at_contacts
+from .contact import carry_over, split_at_contacts
 from .errors import OvradError
 from .placement import Placed, place_curved, place_planar, place_planar_small
 from .progress import StageCallback, report_stage
@@ -113,6 +114,17 @@ class Atlas:
             names.RANDOM: (self.random, "FLOAT"),
         }
 
+    def as_stored(self) -> Atlas:
+        """This atlas as a file keeps it (Blender attributes: float32 and int32 values), read back as
+        from_point_attributes() reads it; the very same values again when it already is. Build_atlas
+        integrates C on it, so the C it gives is the one a solve of the stored atlas integrates."""
+        attrs = {
+            k: np.asarray(v, np.float32 if kind.startswith("FLOAT") else np.int32)
+            for k, (v, kind) in self.point_attributes().items()
+        }
+        centers = np.asarray(self.centers, np.float32)
+        return Atlas.from_point_attributes(centers, attrs, self.beta, self.source_object)
+
     @staticmethod
     def concatenate(atlases: list[Atlas]) -> Atlas:
         """One atlas holding all patches of several (e.g. one per Blender atlas object); same beta."""
@@ -144,7 +156,10 @@ class Atlas:
 
     @staticmethod
     def from_point_attributes(centers, attributes: dict, beta: str, source_object=None) -> Atlas:
-        """Rebuild an atlas from point positions and the attributes point_attributes() wrote."""
+        """Rebuild an atlas from point positions and the attributes point_attributes() wrote.
+
+        Values are taken as they are (a file's float32 values widened, unit vectors unit to that
+        rounding, not renormalised): so writing the atlas again keeps exactly the same values."""
         c = np.asarray(centers, np.float64).reshape(-1, 3)
 
         def get(name, shape=None, dtype=np.float64):
@@ -465,7 +480,19 @@ def build_atlas(
 
     progress(fraction, message) may return False to cancel (raises OvradError).
     """
-    from .overlap import overlap_matrix
+    return build_atlas_and_overlaps(surfaces, settings, progress, backend)[0]
+
+
+def build_atlas_and_overlaps(
+    surfaces: Surfaces, settings: AtlasSettings, progress: StageCallback | None = None, backend: str = "auto"
+) -> tuple[Atlas, csr_matrix]:
+    """build_atlas(), and the C (n x n, C[h, i] = c_ih) it integrated with the settings' quadrature.
+
+    The atlas comes as a file keeps it (Atlas.as_stored) and C is integrated on that, so a solve
+    of the stored atlas may use this C (overlap.py: a patch's row does not depend on the other
+    patches integrated with it) instead of integrating it again.
+    """
+    from .overlap import neighbour_pairs, overlap_matrix
 
     report_stage(progress, 0.0, "finding charts")
     index = index_surfaces(surfaces, settings, backend)
@@ -507,7 +534,7 @@ def build_atlas(
         side=index.sheet_side[sheet].astype(np.int8),
     )
     # Patches cut by contact lines (a partition standing on the floor): one per side (contact.py).
-    atlas = split_at_contacts(atlas, index)
+    atlas = split_at_contacts(atlas, index).as_stored()
     n = len(atlas)
     report_stage(progress, 0.2, f"integrating overlaps of {n} patches")
     C, support = overlap_matrix(
@@ -516,15 +543,30 @@ def build_atlas(
         settings.quadrature,
         progress=lambda f: report_stage(progress, 0.2 + 0.8 * f, "integrating overlaps"),
     )
-    if np.any(support <= 0):
+    C = C.tocsr()
+    while np.any(support <= 0):
         # Patches with no support on their sheet: a face lying on another (a box's bottom on
-        # the floor) is hidden by it, and light can never reach it. Drop them. No surface point
-        # is in such a patch, so it is in no other patch's integral: C loses its rows and columns.
-        keep = np.flatnonzero(support > 0)
-        atlas = atlas.select(support > 0)
-        C = C.tocsr()[keep][:, keep]
+        # the floor) is hidden by it, and light can never reach it. Drop them: C loses their rows
+        # and columns. The rows of the patches next to them are integrated again without them:
+        # a dropped patch still cut their rule's rays at its rim, and where faces coincide it may
+        # have held some of their points; so C is the one a solve of the stored atlas integrates.
+        h, i = neighbour_pairs(atlas)
+        dropped = support <= 0
+        near = np.zeros(len(atlas), bool)
+        near[h[dropped[i]]] = True
+        keep = np.flatnonzero(~dropped)
+        before, atlas = atlas, atlas.select(keep)
+        carry_over(before, index, keep, atlas)
+        C = C[keep][:, keep]
         support = support[keep]
+        redo = np.flatnonzero(near[keep])
+        if len(redo):
+            again, area = overlap_matrix(atlas, index, settings.quadrature, rows=redo)
+            C = (diags((~near[keep]).astype(float)) @ C + again).tocsr()
+            support[redo] = area[redo]
+    C.eliminate_zeros()
     nz = (C + C.T).tocsr()
     nz.data[:] = 1
     counts = np.diff(nz.indptr) - (C.diagonal() > 0)
-    return replace(atlas, support_area=support, effective_area=C.diagonal().copy(), overlap_count=counts)
+    atlas = replace(atlas, support_area=support, effective_area=C.diagonal().copy(), overlap_count=counts)
+    return atlas, C

@@ -154,10 +154,23 @@ def clutter_samples(index, size: np.ndarray) -> ClutterSamples:
     from .overlap import buried
 
     keep = ~buried(index, pts, nrm, 1e-4 * size[sheet])
-    key = np.random.default_rng(len(pts)).random(len(pts))
+    key = position_key(pts)
     out = ClutterSamples(pts[keep], nrm[keep], w[keep], tri[keep], sheet[keep], key[keep])
     index.cache[cache_key] = out
     return out
+
+
+def position_key(points: np.ndarray) -> np.ndarray:
+    """(m,) a value in [0, 1) per point from its coordinates alone (a hash of their bits), so a sample
+    keeps its key whatever other samples the index holds (other objects' clutter at a solve)."""
+    bits = np.ascontiguousarray(points, np.float64).reshape(-1, 3).view(np.uint64)
+    x = bits[:, 0] ^ (bits[:, 1] * np.uint64(0x9E3779B97F4A7C15))
+    x = x ^ (bits[:, 2] * np.uint64(0xC2B2AE3D27D4EB4F))
+    # splitmix64's finaliser
+    x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    x = x ^ (x >> np.uint64(31))
+    return (x >> np.uint64(11)).astype(np.float64) / float(1 << 53)
 
 
 def sample_size(atlas, n_sheets: int) -> np.ndarray:

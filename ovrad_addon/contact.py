@@ -112,6 +112,14 @@ def contacts(atlas, index) -> Contacts:
     return out
 
 
+def carry_over(atlas, index, keep: np.ndarray, selected) -> None:
+    """Cache for `selected` (atlas.select(keep)) the contacts cached for `atlas`: a patch's anchor,
+    lift and cut are its own, so they are the ones contacts() would find again."""
+    c = index.cache.get(_key(atlas))
+    if c is not None:
+        index.cache[_key(selected)] = Contacts(c.anchor[keep], c.lift[keep], c.cut[keep])
+
+
 def split_at_contacts(atlas, index, pieces: int = MAX_PIECES, least: float = LEAST_PIECE):
     """The atlas with each patch a contact line cuts split into one patch per part it can see.
 

@@ -19,12 +19,17 @@ RANDOM = "ovrad_random"  # FLOAT in [0, 1), a stable random value per patch (dis
 RADIOSITY = "ovrad_radiosity"  # FLOAT_COLOR, solved radiance B/pi
 DIRECT = "ovrad_direct"  # FLOAT_COLOR, the first shot's share of it (direct light of lamps and emitters)
 
+# EDGE attribute on an atlas object: one edge between each two overlapping patches (kept_overlaps.py).
+OVERLAP_C = "ovrad_c"  # FLOAT2, (C[i, j], C[j, i]) of the edge's vertices i < j (overlap.overlap_matrix's C)
+
 # Custom properties on the atlas object.
 PROP_SOURCE = "ovrad_source"  # name of the source mesh object
 PROP_BETA = "ovrad_beta"  # beta profile the atlas was built with ("box" or "smooth")
 PROP_VERSION = "ovrad_atlas_version"
 PROP_LIGHT_KEY = "ovrad_light_key"  # hash of the lamps and emission the stored solve used
 PROP_ENVIRONMENT = "ovrad_environment_key"  # on the environment atlas: fingerprint of its surfaces
+# On an atlas object's mesh: the key of the overlaps kept on its edges (kept_overlaps.overlap_key).
+PROP_OVERLAP_KEY = "ovrad_overlap_key"
 
 IMAGE_SUFFIX = "_ovrad"  # an image bake of object X is the image data block X + IMAGE_SUFFIX
 

@@ -7,6 +7,7 @@ run again with other lamp powers or emission strengths without recomputing form 
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -17,6 +18,7 @@ from .clutter import clutter_from_atlas
 from .direct import DirectLight, direct_irradiance, triangle_normals
 from .errors import OvradError
 from .gather import MAX_RAYS, NEAR_LIGHT_SAMPLES, NEAR_SKY_SAMPLES, NearField, gather_unique, sampled_emission
+from .kept_overlaps import KeptOverlaps, usable
 from .lights import Lamp
 from .overlap import alpha_at, overlap_matrix, patch_average, patch_quadrature, reconstruct
 from .progress import StageCallback, report_stage
@@ -27,6 +29,7 @@ from .solver import SolveState, factorize, inverse_areas, solve_progressive
 from .surfaces import Surfaces
 from .transport import Transport, gather_transport
 
+QUADRATURE = AtlasSettings().quadrature  # the rule of C at a solve: Generate's (so C may be kept)
 GATHER_Q = 4  # polar rule of the receiver points (transport, direct light, patch emission)
 NEE_AREA_FRACTION = 0.1  # emitters covering less of the scene are shot with shadow rays
 
@@ -99,6 +102,7 @@ class Problem:
     transport: Transport
     rays: int
     seconds: dict
+    kept: int = 0  # patches whose rows and columns of C were kept with the atlas (not integrated)
 
 
 def _stored_sheets(atlas: Atlas, index: SurfaceIndex) -> np.ndarray:
@@ -199,16 +203,18 @@ def prepare(
     surfaces: Surfaces,
     atlas: Atlas,
     settings: SolveSettings = SolveSettings(),
-    quadrature: int = 12,
+    quadrature: int = QUADRATURE,
     progress: StageCallback | None = None,
     backend: str = "auto",
+    kept: Sequence[KeptOverlaps] = (),
     drop_unsupported: bool = False,
 ) -> Problem:
     """Sheets, the overlap matrix C (fine rule of `quadrature`) and the transport R for an atlas.
 
-    drop_unsupported: patches whose support holds no surface are removed from the problem's atlas
-    (refine.py's children off a sheet's border); by default the atlas is kept as given, patch for
-    patch (the operators write results back to it)."""
+    kept: blocks of C kept with the atlas (kept_overlaps.py); those whose key still fits are used,
+    only the other patches' rows are integrated. drop_unsupported: patches whose support holds no
+    surface are removed from the problem's atlas (refine.py's children off a sheet's border); by
+    default the atlas is kept as given, patch for patch (the operators write results back to it)."""
     if len(atlas) == 0:
         raise OvradError("the atlas has no patches: generate an atlas first")
     seconds = {}
@@ -217,14 +223,21 @@ def prepare(
     index = both_sides_index(surfaces, backend, atlas)
     atlas = attach_sheets(atlas, index)
     seconds["index"] = time.perf_counter() - t0
-    report_stage(progress, 0.05, "integrating overlaps")
     t0 = time.perf_counter()
+    known, C_kept = usable(surfaces, atlas, list(kept), quadrature)
+    todo = np.flatnonzero(~known)
+    report_stage(progress, 0.05, "integrating overlaps" if len(todo) else "overlaps kept with the atlas")
     C, support = overlap_matrix(
         atlas,
         index,
         quadrature,
         progress=lambda f: report_stage(progress, 0.05 + 0.35 * f, "integrating overlaps"),
+        rows=todo,
     )
+    if C_kept is not None:
+        C = (C + C_kept).tocsr()
+        # exactly the row sums, as integrated C's are (its values come back in float32)
+        support[known] = np.asarray(C_kept.sum(axis=1)).ravel()[known]
     if drop_unsupported and np.any(support <= 0):
         keep = np.flatnonzero(support > 0)
         atlas, C, support = atlas.select(keep), C.tocsr()[keep][:, keep], support[keep]
@@ -239,7 +252,7 @@ def prepare(
         min_rays=settings.min_rays,
     )
     seconds["transport"] = time.perf_counter() - t0
-    return Problem(surfaces, atlas, index, C, T, T.rays, seconds)
+    return Problem(surfaces, atlas, index, C, T, T.rays, seconds, int(known.sum()))
 
 
 def laplacian_smoothed(C: spmatrix, weight: float) -> spmatrix:

@@ -402,6 +402,9 @@ def make_report(args, module, props, paths, receivers, atlases, stats, images, s
     report = dict(input=src, output=out, ovrad=module.__name__)
     report |= dict(receivers=[o.name for o in receivers], patches=sum(len(o.data.vertices) for o in atlases))
     report |= {k: stats.get(k) for k in keys} | dict(solver=props.solve_rule, beta=props.beta)
+    # the solve's own stages (index, overlap: C, transport) and how many patches' C it found kept
+    report["solve_seconds"] = {k: round(v, 3) for k, v in (stats.get("prepare_seconds") or {}).items()}
+    report["overlaps_kept"] = stats.get("overlaps_kept")
     report |= dict(overlap=round(props.overlap, 6), tolerance=float(f"{props.solve_tolerance:.6g}"))
     report |= dict(quality=props.quality.lower(), gather_rays=props.gather_rays, min_rays=props.min_rays)
     report |= dict(target=args.target, quantity=args.quantity, images=images, not_baked=skipped)

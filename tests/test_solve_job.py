@@ -42,12 +42,13 @@ def test_the_job_module_imports_no_blender_module():
 
 def solved(rays=0):
     """A stand-in for a prepared problem."""
-    return types.SimpleNamespace(rays=rays)
+    return types.SimpleNamespace(rays=rays, kept=0, seconds={})
 
 
 class Inputs:
     surfaces = atlas = object()
     lamps = ()
+    kept = ("a kept block of C",)
 
     def __init__(self, rule="exact"):
         self.settings = types.SimpleNamespace(rule=rule)
@@ -58,10 +59,12 @@ def fake_engine(sj, monkeypatch, reports, final=None, error=None):
     stops when the callback says so; prepare() returns a stand-in problem."""
     calls = {"prepare": 0, "solve": 0}
 
-    def prepare(surfaces, atlas, settings, progress=None):
+    def prepare(surfaces, atlas, settings, progress=None, kept=()):
         calls["prepare"] += 1
+        assert kept == Inputs.kept, "the job hands the engine the overlaps the atlases keep"
         assert progress(0.5, "casting transport rays") in (True, False)
-        return types.SimpleNamespace(rays=123)
+        seconds = {"index": 0.1, "overlap": 0.0, "transport": 2.0}
+        return types.SimpleNamespace(rays=123, kept=40, seconds=seconds)
 
     def solve(problem, lamps, settings, progress=None, sky=None):
         calls["solve"] += 1
@@ -105,6 +108,8 @@ def test_a_job_prepares_solves_once_and_reports_converged(sj, monkeypatch):
         "rays": 7,
         "transport_rays": 123,
         "form_factors_reused": False,
+        "overlaps_kept": 40,
+        "prepare_seconds": {"index": 0.1, "overlap": 0.0, "transport": 2.0},
         "shots": 2,
         "unshot_fraction": 1e-3,
         "converged": True,

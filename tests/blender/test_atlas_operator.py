@@ -59,10 +59,17 @@ def attribute(mesh, name):
         "INT": ("value", 1, np.int32),
         "FLOAT_VECTOR": ("vector", 3, np.float32),
         "FLOAT_COLOR": ("color", 4, np.float32),
+        "FLOAT2": ("vector", 2, np.float32),
     }[attr.data_type]
     out = np.empty(len(attr.data) * comps, dtype)
     attr.data.foreach_get(key, out)
     return out.reshape(len(attr.data), -1) if comps > 1 else out
+
+
+def edges(mesh):
+    e = np.empty(2 * len(mesh.edges), np.int32)
+    mesh.edges.foreach_get("vertices", e)
+    return e.reshape(-1, 2)
 
 
 def positions(mesh):
@@ -95,10 +102,25 @@ def test_generate_on_cube_makes_one_atlas_object_with_every_attribute(scene):
     assert [c.name for c in atlas.users_collection] == ["ovrad"]
     assert "ovrad" in [c.name for c in scene.collection.children]
     mesh = atlas.data
-    assert len(mesh.vertices) > 50 and len(mesh.edges) == 0 and len(mesh.polygons) == 0
+    assert len(mesh.vertices) > 50 and len(mesh.edges) > 0 and len(mesh.polygons) == 0
     for name, kind in ATLAS_ATTRIBUTES.items():
         attr = mesh.attributes[name]
         assert (attr.data_type, attr.domain) == (kind, "POINT"), name
+    # C kept on the edges: one between each two overlapping patches i < j, (C[i, j], C[j, i]) on it
+    attr = mesh.attributes["ovrad_c"]
+    assert (attr.data_type, attr.domain) == ("FLOAT2", "EDGE")
+    pairs, c = edges(mesh), attribute(mesh, "ovrad_c")
+    assert np.all(pairs[:, 0] < pairs[:, 1]) and np.all(c.max(axis=1) > 0)
+    n = len(mesh.vertices)
+    np.testing.assert_array_equal(np.bincount(pairs.ravel(), minlength=n), attribute(mesh, "ovrad_overlap"))
+    # a row of C sums to the patch's support area: the diagonal is the effective area
+    rows = (
+        attribute(mesh, "ovrad_area")
+        + np.bincount(pairs[:, 0], c[:, 0], n)
+        + np.bincount(pairs[:, 1], c[:, 1], n)
+    )
+    np.testing.assert_allclose(rows, attribute(mesh, "ovrad_support_area"), rtol=1e-5)
+    assert isinstance(mesh.get("ovrad_overlap_key"), str)
     # Every centre lies on the cube's surface (|coordinate| = 1 on some axis), normals are unit and outward.
     p = positions(mesh)
     assert np.allclose(np.abs(p).max(axis=1), 1.0, atol=1e-5)
@@ -115,8 +137,9 @@ def test_atlas_attributes_survive_save_and_reload(scene, tmp_path):
     select(add_cube())
     bpy.ops.ovrad.generate_atlas()
     (atlas,) = atlases()
-    before = {name: attribute(atlas.data, name) for name in ATLAS_ATTRIBUTES}
-    before_co = positions(atlas.data)
+    before = {name: attribute(atlas.data, name) for name in [*ATLAS_ATTRIBUTES, "ovrad_c"]}
+    before_co, before_edges = positions(atlas.data), edges(atlas.data)
+    key = atlas.data["ovrad_overlap_key"]
     path = str(tmp_path / "atlas.blend")
     bpy.ops.wm.save_as_mainfile(filepath=path)
     bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
@@ -125,6 +148,7 @@ def test_atlas_attributes_survive_save_and_reload(scene, tmp_path):
     (atlas,) = atlases("Cube")
     assert atlas["ovrad_beta"] == "smooth"
     assert np.array_equal(positions(atlas.data), before_co)
+    assert np.array_equal(edges(atlas.data), before_edges) and atlas.data["ovrad_overlap_key"] == key
     for name, values in before.items():
         assert np.array_equal(attribute(atlas.data, name), values), name
 

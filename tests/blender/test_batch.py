@@ -67,6 +67,9 @@ def test_vertex_bake_saves_attributes_report_and_picture(ovrad, run_blender, tmp
     assert r["rays"] > 100_000 and 0 <= r["unshot_fraction"] <= r["tolerance"] == pytest.approx(1e-3)
     assert r["solver"] == "exact" and r["beta"] == "smooth" and r["converged"] is True
     assert set(r["seconds"]) == {"generate", "solve", "bake", "save", "picture", "total"}
+    # the solve's stages: C kept by Generate for every patch, not integrated again
+    assert set(r["solve_seconds"]) == {"index", "overlap", "transport"}
+    assert r["overlaps_kept"] == r["patches"] and r["solve_seconds"]["overlap"] < 0.1
     assert r["output"] == str(out) and r["input"] == str(CORNELL)
     assert picture.stat().st_size > 1000
     attrs, _ = inspect(run_blender, out)

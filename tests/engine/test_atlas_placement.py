@@ -71,7 +71,10 @@ def test_auto_sides_skip_back_faces_that_see_nothing():
     assert sorted(idx.sheet_side.tolist()) == [-1] * 5 + [1] * 5
 
 
-@pytest.mark.parametrize("scale", [1e-3, 1e3])
+# Powers of two: the atlas is integrated as a file keeps it (float32), whose rounding is exactly
+# scaled along only by them (a rule point on a contact line rounded to one side at one scale and to
+# the other at 1000x would move that patch's area by up to 1 %, which is rounding, not scale).
+@pytest.mark.parametrize("scale", [2.0**-10, 2.0**10])
 def test_atlas_is_unchanged_by_scene_scale(scale):
     base = scenes.cornell()
     scaled = Surfaces.from_arrays(

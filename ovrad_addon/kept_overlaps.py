@@ -1,0 +1,176 @@
+"""C kept with the atlas: Generate integrates the overlap matrix once and the file keeps it, so a solve
+uses it instead of integrating it again.
+
+C is block diagonal over atlas objects (patches overlap only on their own sheet, and a sheet lies on
+one object), and a patch's row of C depends on that patch and its sheet's patches around it only
+(overlap.overlap_matrix), so each atlas object keeps its own block: its off-diagonal entries on mesh
+edges between overlapping patches, (C[i, j], C[j, i]) for the edge (i, j), i < j (C[h, k] = c_kh, the
+integral of alpha_k over D_h: C is not symmetric), and its diagonal c_kk as the patches' effective
+areas. Values are float32, as every attribute: the solve moves by about
+1e-8 of its radiosity (Cornell box), far below its noise. The support areas A_h are taken again as
+the row sums of the C read back, so sum_i c_ih = A_h holds exactly, as the solver expects.
+
+A kept block is used only when its key, stored with it, is the key of what the solve reads: the
+patches (every array C depends on), the world geometry they were integrated in (each object's
+triangles in world space, in any object order: rays meet every object), the patches' own objects,
+the rule (quadrature, crease angle, RULE_VERSION) and the kept values themselves. Anything else
+(an edited atlas, a moved object, an atlas from an older version with no C) is integrated again.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix, csr_matrix, triu
+
+from .atlas import Atlas
+from .settings import AtlasSettings
+from .surfaces import Surfaces
+
+# Raise when overlap.py integrates C differently (its rule, membership, contacts, clutter samples):
+# a C kept by an earlier version is then integrated again instead of used.
+RULE_VERSION = 1
+
+
+@dataclass(frozen=True)
+class KeptOverlaps:
+    """The block of C of `count` patches of an atlas, from patch `start` on (one atlas object), as a
+    file keeps it: edges (m, 2) int32 patch pairs i < j within the block, values (m, 2) float32
+    (C[i, j], C[j, i]), diagonal (count,) float32 c_kk, and key, the overlap_key() it was stored with."""
+
+    start: int
+    count: int
+    key: str
+    edges: np.ndarray
+    values: np.ndarray
+    diagonal: np.ndarray
+
+    def matrix(self) -> csr_matrix:
+        """The block (count x count, float64)."""
+        i, j = self.edges[:, 0].astype(np.int64), self.edges[:, 1].astype(np.int64)
+        k = np.arange(self.count)
+        rows = np.concatenate([i, j, k])
+        cols = np.concatenate([j, i, k])
+        vals = np.concatenate([self.values[:, 0], self.values[:, 1], self.diagonal]).astype(np.float64)
+        C = coo_matrix((vals, (rows, cols)), shape=(self.count, self.count)).tocsr()
+        C.eliminate_zeros()
+        return C
+
+
+def kept_form(C: csr_matrix) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(edges, values, diagonal) of a block of C as a file keeps it (see KeptOverlaps)."""
+    C = csr_matrix(C)
+    pairs = triu(C + C.T, k=1).tocoo()
+    order = np.lexsort((pairs.col, pairs.row))
+    i, j = pairs.row[order], pairs.col[order]
+    values = np.column_stack([np.asarray(C[i, j]).ravel(), np.asarray(C[j, i]).ravel()])
+    return (
+        np.column_stack([i, j]).astype(np.int32).reshape(-1, 2),
+        values.astype(np.float32).reshape(-1, 2),
+        C.diagonal().astype(np.float32),
+    )
+
+
+def object_keys(surfaces: Surfaces) -> list[bytes]:
+    """Per surfaces object, a hash of its triangles' world-space corners, in its own triangle order."""
+    n = len(surfaces.object_names)
+    order = np.argsort(surfaces.object_index, kind="stable")
+    ends = np.searchsorted(surfaces.object_index[order], np.arange(n + 1))
+    corners = np.ascontiguousarray(surfaces.vertices[surfaces.triangles[order]])
+    pieces = (corners[ends[o] : ends[o + 1]].tobytes() for o in range(n))
+    return [hashlib.blake2b(b, digest_size=16).digest() for b in pieces]
+
+
+def _update(h, a) -> None:
+    if a is None:
+        h.update(b"none")
+        return
+    a = np.ascontiguousarray(a)
+    h.update(f"{a.dtype.str}{a.shape}".encode())
+    h.update(a.tobytes())
+
+
+def overlap_key(
+    surfaces: Surfaces | list[bytes],
+    atlas: Atlas,
+    edges: np.ndarray,
+    values: np.ndarray,
+    diagonal: np.ndarray,
+    quadrature: int,
+    crease_angle: float = AtlasSettings().crease_angle,
+) -> str:
+    """The key of a kept block of C (edges, values, diagonal) of `atlas` (one atlas object's patches,
+    as stored: see the module's docstring for what it covers). surfaces: or their object_keys()."""
+    keys = object_keys(surfaces) if isinstance(surfaces, Surfaces) else surfaces
+    world = sorted(set(keys))
+    rank = {k: r for r, k in enumerate(world)}
+    h = hashlib.blake2b(digest_size=20)
+    h.update(f"ovrad overlaps {RULE_VERSION} q{quadrature} crease{crease_angle!r} {atlas.beta}".encode())
+    h.update(b"".join(sorted(keys)))
+    object_rank = np.array([rank[k] for k in keys], np.int64)
+    _update(h, object_rank[np.asarray(atlas.source_object, np.int64)])
+    for a in (
+        atlas.centers,
+        atlas.normals,
+        atlas.tangents,
+        atlas.radii,
+        atlas.shapes,
+        atlas.thickness,
+        atlas.min_cos,
+        atlas.random,
+        atlas.triangle,
+        atlas.side,
+        atlas.anchor,
+    ):
+        _update(h, a)
+    for a in (edges, values, diagonal):
+        _update(h, a)
+    return h.hexdigest()
+
+
+def keep(
+    surfaces: Surfaces | list[bytes],
+    atlas: Atlas,
+    C: csr_matrix,
+    quadrature: int,
+    crease_angle: float,
+    start: int = 0,
+) -> KeptOverlaps:
+    """The block C (len(atlas) square) of `atlas` (as stored, one atlas object's patches; start: the
+    position of its first patch in the atlas a solve concatenates) ready to be kept, with its key.
+    surfaces: or their object_keys() (computed once for many blocks)."""
+    edges, values, diagonal = kept_form(C)
+    key = overlap_key(surfaces, atlas, edges, values, diagonal, quadrature, crease_angle)
+    return KeptOverlaps(start, len(atlas), key, edges, values, diagonal)
+
+
+def usable(
+    surfaces: Surfaces, atlas: Atlas, kept: list[KeptOverlaps], quadrature: int
+) -> tuple[np.ndarray, csr_matrix | None]:
+    """The kept blocks that fit (their key is the key of what the solve reads now), as
+    (known (n,) bool: the patches whose rows and columns of C they give, C (n x n) holding them)."""
+    n = len(atlas)
+    known = np.zeros(n, bool)
+    blocks = []
+    keys = object_keys(surfaces) if kept else []
+    for k in kept:
+        part = np.arange(k.start, k.start + k.count)
+        if k.count == 0 or k.start < 0 or k.start + k.count > n or np.any(known[part]):
+            continue
+        if len(k.diagonal) != k.count or (len(k.edges) and (k.edges.min() < 0 or k.edges.max() >= k.count)):
+            continue
+        key = overlap_key(keys, atlas.select(part), k.edges, k.values, k.diagonal, quadrature)
+        if key != k.key:
+            continue
+        known[part] = True
+        blocks.append(k.matrix().tocoo())
+        blocks[-1].row += k.start
+        blocks[-1].col += k.start
+    if not blocks:
+        return known, None
+    rows = np.concatenate([b.row for b in blocks])
+    cols = np.concatenate([b.col for b in blocks])
+    vals = np.concatenate([b.data for b in blocks])
+    return known, coo_matrix((vals, (rows, cols)), shape=(n, n)).tocsr()

@@ -1,0 +1,135 @@
+"""C integrated once: Generate keeps each atlas's overlap matrix on its edges, the file keeps it, and a
+solve after reloading uses it and gives the solve that integrates it again; a stale one is not used."""
+
+from __future__ import annotations
+
+import blender_scenes
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+pytestmark = pytest.mark.blender
+
+KEY = "ovrad_overlap_key"
+RECEIVERS = ("Floor", "Box")
+
+
+def build():
+    """A lit floor with a closed box standing on it (its bottom lies on the floor) and a card above
+    that has no atlas (the solve gives it an environment atlas)."""
+    scene = bpy.context.scene
+    scene.ovrad.patch_count = 250
+    bpy.ops.mesh.primitive_plane_add(size=4.0)
+    floor = bpy.context.active_object
+    floor.name = "Floor"
+    floor.data.materials.append(blender_scenes.principled("grey", base=(0.6, 0.6, 0.6)))
+    bpy.ops.mesh.primitive_cube_add(size=1.0, location=(0.6, 0.2, 0.5))
+    box = bpy.context.active_object
+    box.name = "Box"
+    box.data.materials.append(blender_scenes.principled("white", base=(0.8, 0.8, 0.8)))
+    bpy.ops.mesh.primitive_plane_add(size=1.5, location=(-0.8, -0.5, 1.6))
+    bpy.context.active_object.name = "Card"
+    lamp = bpy.data.objects.new("Lamp", bpy.data.lights.new("Lamp", "POINT"))
+    lamp.data.energy = 300.0
+    lamp.location = (0.5, -0.5, 2.5)
+    scene.collection.objects.link(lamp)
+    blender_scenes.select(floor, box)
+    assert bpy.ops.ovrad.generate_atlas() == {"FINISHED"}
+
+
+def atlas_objects():
+    return sorted((o for o in bpy.data.objects if "ovrad_source" in o), key=lambda o: o.name)
+
+
+def solve(ovrad):
+    """Solve as after opening the file (no prepared problem in memory); (stats, radiosity per atlas)."""
+    ovrad.operators.solution.clear_cache()
+    jobs = []
+    remove = ovrad.operators.solve.add_listener(jobs.append)
+    try:
+        assert bpy.ops.ovrad.solve() == {"FINISHED"}
+    finally:
+        remove()
+    out = {o.name: blender_scenes.color_values(o.data, "ovrad_radiosity")[:, :3] for o in atlas_objects()}
+    return jobs[-1].stats(), out
+
+
+def patches(*names):
+    return sum(len(bpy.data.objects[n].data.vertices) for n in names)
+
+
+def load(path):
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+    bpy.ops.wm.open_mainfile(filepath=str(path))
+
+
+def reopen(path):
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    load(path)
+
+
+@pytest.fixture
+def saved(ovrad, fresh_scene, tmp_path):
+    """The scene generated, saved, solved once (which adds the environment atlas), saved again."""
+    build()
+    path = tmp_path / "kept.blend"
+    reopen(path)
+    stats, _ = solve(ovrad)
+    # the receivers' C kept by Generate, the environment's from its building in this solve
+    assert stats["overlaps_kept"] == patches("Floor_ovrad_atlas", "Box_ovrad_atlas", "ovrad_environment")
+    assert stats["prepare_seconds"]["overlap"] < 0.1 * stats["prepare_seconds"]["transport"]
+    reopen(path)
+    return path
+
+
+def test_the_kept_c_gives_the_solve_that_integrates_it_again(saved, ovrad):
+    kept_stats, kept = solve(ovrad)
+    n = sum(len(v) for v in kept.values())
+    assert len(kept) == 3 and kept_stats["overlaps_kept"] == n and not kept_stats["form_factors_reused"]
+    # the same file without the kept C (as an atlas made before it was kept): integrated again
+    for obj in atlas_objects():
+        del obj.data[KEY]
+    fresh_stats, fresh = solve(ovrad)
+    assert fresh_stats["overlaps_kept"] == 0
+    assert fresh_stats["prepare_seconds"]["overlap"] > 10 * kept_stats["prepare_seconds"]["overlap"]
+    top = max(np.abs(v).max() for v in fresh.values())
+    assert top > 0
+    for name, values in fresh.items():
+        # float32 attributes both; the kept C moves the answer by about 1e-8 of it
+        np.testing.assert_allclose(kept[name], values, rtol=1e-5, atol=1e-6 * top, err_msg=name)
+
+
+def test_an_edited_atlas_or_moved_geometry_is_integrated_again(saved, ovrad):
+    env = patches("ovrad_environment")
+    # one floor patch moved a little along the floor: the floor's C only
+    floor = bpy.data.objects["Floor_ovrad_atlas"].data
+    floor.vertices[0].co.x += 0.01
+    floor.update()
+    stats, _ = solve(ovrad)
+    assert stats["overlaps_kept"] == patches("Box_ovrad_atlas") + env
+    # the card moved (it has no atlas, but rays meet it): every C is stale, and the environment
+    # atlas is built again (its C with it)
+    load(saved)
+    bpy.data.objects["Card"].location.z += 0.05
+    stats, _ = solve(ovrad)
+    assert stats["overlaps_kept"] == patches("ovrad_environment")
+    # a kept value changed by hand: that atlas's C only
+    load(saved)
+    box = bpy.data.objects["Box_ovrad_atlas"].data
+    c = box.attributes["ovrad_c"].data
+    c[0].vector = (c[0].vector[0] * 2.0, c[0].vector[1])
+    stats, _ = solve(ovrad)
+    assert stats["overlaps_kept"] == patches("Floor_ovrad_atlas") + env
+
+
+def test_generating_again_replaces_the_kept_c(saved, ovrad):
+    before = {o.name: o.data[KEY] for o in atlas_objects()}
+    bpy.context.scene.ovrad.patch_count = 180
+    blender_scenes.select(bpy.data.objects["Floor"])
+    assert bpy.ops.ovrad.generate_atlas() == {"FINISHED"}
+    after = {o.name: o.data[KEY] for o in atlas_objects()}
+    assert after["Floor_ovrad_atlas"] != before["Floor_ovrad_atlas"]
+    assert after["Box_ovrad_atlas"] == before["Box_ovrad_atlas"]
+    stats, _ = solve(ovrad)
+    assert stats["overlaps_kept"] == sum(len(o.data.vertices) for o in atlas_objects())

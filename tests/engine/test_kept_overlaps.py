@@ -1,0 +1,192 @@
+"""C kept with the atlas (kept_overlaps.py): Generate's C is the C a solve integrates, each atlas
+object's block on its own, and a kept block is used only while it still fits."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+import scenes
+from ovrad_addon.atlas import build_atlas_and_overlaps
+from ovrad_addon.kept_overlaps import KeptOverlaps, keep, kept_form, usable
+from ovrad_addon.names import SHAPE_BALL
+from ovrad_addon.overlap import overlap_matrix
+from ovrad_addon.pipeline import SolveSettings, attach_sheets, both_sides_index, prepare, solve
+from ovrad_addon.settings import AtlasSettings
+from ovrad_addon.surfaces import Surfaces
+
+SETTINGS = AtlasSettings(patch_count=500)
+FAST = SolveSettings(min_rays=0, rays_per_point=8, gather_rays=0)
+NAMES = ["room", "box", "partition", "leaves", "ball", "lamp", "shade"]
+
+
+def busy_room() -> Surfaces:
+    """What C is hard on, in one room: a closed box standing on the floor (its bottom lies on the
+    floor: coincident faces, patches dropped), an open partition standing on it (contact lines),
+    clutter (small bent leaves: ball patches), a sphere (a curved sheet), an emitting quad, and a
+    small box that receives no patches (an occluder only)."""
+    rng = np.random.default_rng(3)
+    parts, objs = list(scenes.box_faces((0, 0, 0), (2, 2, 2), inward=True)), [0] * 6
+    box = scenes.box_faces((0.3, 0.3, 0.0), (0.8, 0.7, 0.6))
+    parts += box
+    objs += [1] * len(box)
+    wall = scenes.quad((1.2, 0.2, 0.0), (1.2, 1.2, 0.0), (1.2, 1.2, 1.3), (1.2, 0.2, 1.3))
+    parts.append(wall)
+    objs.append(2)
+    for _ in range(40):
+        v, t = scenes.bent_leaf(rng, rng.uniform(0.01, 0.03), 0.3, 2)
+        parts.append((v + rng.uniform([0.2, 1.3, 0.3], [0.9, 1.8, 1.5]), t))
+        objs.append(3)
+    sphere = scenes.sphere(0.2, 2)
+    parts.append((sphere.vertices + [1.6, 1.5, 0.6], sphere.triangles))
+    objs.append(4)
+    parts.append(scenes.quad((0.8, 0.8, 1.95), (0.8, 1.2, 1.95), (1.2, 1.2, 1.95), (1.2, 0.8, 1.95)))
+    objs.append(5)
+    shade = scenes.box_faces((1.4, 0.3, 1.5), (1.7, 0.6, 1.6))
+    parts += shade
+    objs += [6] * len(shade)
+    v, t, o = scenes.merge(parts, obj=objs)
+    emission = np.where(o[:, None] == 5, 8.0, 0.0) * np.ones((1, 3))
+    receiver = np.array([True] * 6 + [False])
+    return Surfaces.from_arrays(v, t, o, [0.7] * 3, emission, NAMES, receiver)
+
+
+def moved(s: Surfaces, obj: int, offset) -> Surfaces:
+    """The surfaces with object `obj` moved by `offset` (its vertices are its own: merge copies)."""
+    v = s.vertices.copy()
+    own = np.unique(s.triangles[s.object_index == obj])
+    v[own] += offset
+    return replace(s, vertices=v)
+
+
+def by_object(atlas, C):
+    """The atlas and C with each object's patches together, as a solve concatenates atlas objects."""
+    order = np.argsort(atlas.source_object, kind="stable")
+    return atlas.select(order), C[order][:, order]
+
+
+def blocks(s: Surfaces, atlas, C) -> list[KeptOverlaps]:
+    """One kept block per object holding patches, as Generate writes them (one atlas object each);
+    atlas: by_object()'s."""
+    out, start = [], 0
+    for o in np.unique(atlas.source_object):
+        sel = np.flatnonzero(atlas.source_object == o)
+        assert np.array_equal(sel, start + np.arange(len(sel))), "an object's patches are together"
+        out.append(
+            keep(s, atlas.select(sel), C[sel][:, sel], SETTINGS.quadrature, SETTINGS.crease_angle, start)
+        )
+        start += len(sel)
+    return out
+
+
+@pytest.fixture(scope="module")
+def room():
+    s = busy_room()
+    atlas, C = build_atlas_and_overlaps(s, SETTINGS)
+    return s, atlas, C
+
+
+def test_the_scene_has_what_c_is_hard_on(room):
+    s, atlas, C = room
+    assert set(np.unique(atlas.source_object)) == {0, 1, 2, 3, 4, 5}  # the shade holds none
+    assert np.any(atlas.shapes == SHAPE_BALL)
+    cut = np.any(np.abs(atlas.anchor - atlas.centers) > 1e-6, axis=1)
+    assert np.any(cut), "patches cut at a contact line"
+
+
+def test_generate_integrates_the_c_a_solve_integrates(room):
+    """On the stored atlas, re-attached to the index a solve builds: the same C, to the last bit
+    (the dropped patches under the box are gone from both, and their neighbours' rows too)."""
+    s, atlas, C = room
+    index = both_sides_index(s, atlas=atlas)
+    again, support = overlap_matrix(attach_sheets(atlas, index), index, SETTINGS.quadrature)
+    assert abs(again - C).max() == 0.0
+    np.testing.assert_array_equal(support, atlas.support_area)
+    np.testing.assert_array_equal(C.diagonal(), atlas.effective_area)
+
+
+def test_an_objects_rows_do_not_depend_on_the_other_objects(room):
+    """Each object's block integrated with its own patches only, in a solve's order (the objects
+    in another order): the block Generate integrated with all of them."""
+    s, atlas, C = room
+    order = np.concatenate([np.flatnonzero(atlas.source_object == o) for o in (4, 2, 0, 3, 1)])
+    shuffled = atlas.select(order)
+    index = both_sides_index(s, atlas=shuffled)
+    together, _ = overlap_matrix(attach_sheets(shuffled, index), index, SETTINGS.quadrature)
+    assert abs(together - C[order][:, order]).max() == 0.0
+    for o in (0, 3):
+        sel = np.flatnonzero(atlas.source_object == o)
+        alone = atlas.select(sel)
+        index = both_sides_index(s, atlas=alone)
+        block, _ = overlap_matrix(attach_sheets(alone, index), index, SETTINGS.quadrature)
+        assert abs(block - C[sel][:, sel]).max() == 0.0
+
+
+def test_the_stored_atlas_is_a_fixed_point(room):
+    _, atlas, _ = room
+    again = atlas.as_stored()
+    for name in ("centers", "normals", "tangents", "radii", "thickness", "min_cos", "random", "anchor"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(atlas, name), err_msg=name)
+
+
+def test_a_kept_block_comes_back_as_c_in_float32(room):
+    s, atlas, C = room
+    edges, values, diagonal = kept_form(C)
+    assert np.all(edges[:, 0] < edges[:, 1])
+    k = KeptOverlaps(0, len(atlas), "", edges, values, diagonal)
+    back = k.matrix()
+    assert back.nnz == C.nnz
+    assert abs(back - C).max() <= 2.0**-24 * abs(C).max()
+
+
+def test_a_solve_with_the_kept_c_is_the_solve_that_integrates_it(room):
+    s, atlas, C = room
+    atlas, C = by_object(atlas, C)
+    kept = blocks(s, atlas, C)
+    fresh = prepare(s, atlas, FAST)
+    reused = prepare(s, atlas, FAST, kept=kept)
+    assert (fresh.kept, reused.kept) == (0, len(atlas))
+    assert abs(reused.C - fresh.C).max() <= 1e-6 * abs(fresh.C).max()
+    # the support areas are the kept C's row sums: exactly, as the integrated C's are to rounding
+    np.testing.assert_allclose(
+        reused.atlas.support_area, np.asarray(reused.C.sum(axis=1)).ravel(), rtol=1e-15
+    )
+    np.testing.assert_allclose(reused.atlas.support_area, fresh.atlas.support_area, rtol=1e-6)
+    a = solve(fresh, settings=FAST).radiosity
+    b = solve(reused, settings=FAST).radiosity
+    assert np.abs(a).max() > 0
+    np.testing.assert_allclose(b, a, rtol=1e-6, atol=1e-8 * np.abs(a).max())  # 1e-8 measured
+
+
+def test_stale_blocks_are_integrated_again(room):
+    s, atlas, C = room
+    atlas, C = by_object(atlas, C)
+    kept = blocks(s, atlas, C)
+    n = len(atlas)
+    q = SETTINGS.quadrature
+    assert usable(s, atlas, kept, q)[0].all()
+    # an occluder moved (it holds no patch, yet rays meet it): every block is stale
+    assert not usable(moved(s, 6, [0.0, 0.0, -0.01]), atlas, kept, q)[0].any()
+    # another rule
+    assert not usable(s, atlas, kept, q + 1)[0].any()
+    # one patch of the partition edited: its block only
+    k = int(np.flatnonzero(atlas.source_object == 2)[0])
+    radii = atlas.radii.copy()
+    radii[k] *= 1.001
+    known, _ = usable(s, replace(atlas, radii=radii), kept, q)
+    np.testing.assert_array_equal(known, atlas.source_object != 2)
+    # a kept value changed, or a block for other patches (another atlas object's place)
+    values = kept[0].values.copy()
+    values[0, 0] *= 1.5
+    known, _ = usable(s, atlas, [replace(kept[0], values=values), *kept[1:]], q)
+    np.testing.assert_array_equal(known, atlas.source_object != 0)
+    known, _ = usable(s, atlas, [replace(kept[0], start=kept[1].start)], q)
+    assert not known.any()
+    # what prepare() does with a partly stale set: it integrates the rest, as it would all of C
+    problem = prepare(s, replace(atlas, radii=radii), FAST, kept=kept)
+    assert problem.kept == n - int(np.sum(atlas.source_object == 2))
+    index = both_sides_index(s, atlas=atlas)
+    full, _ = overlap_matrix(attach_sheets(replace(atlas, radii=radii), index), index, q)
+    assert abs(problem.C - full).max() <= 1e-6 * abs(full).max()
