@@ -492,8 +492,6 @@ def build_atlas_and_overlaps(
     of the stored atlas may use this C (overlap.py: a patch's row does not depend on the other
     patches integrated with it) instead of integrating it again.
     """
-    from .overlap import neighbour_pairs, overlap_matrix
-
     report_stage(progress, 0.0, "finding charts")
     index = index_surfaces(surfaces, settings, backend)
     if len(index.sheet_chart) == 0:
@@ -535,13 +533,28 @@ def build_atlas_and_overlaps(
     )
     # Patches cut by contact lines (a partition standing on the floor): one per side (contact.py).
     atlas = split_at_contacts(atlas, index).as_stored()
+    return integrate(atlas, index, settings.quadrature, progress, 0.2)
+
+
+def integrate(
+    atlas: Atlas,
+    index: SurfaceIndex,
+    quadrature: int,
+    progress: StageCallback | None = None,
+    start: float = 0.0,
+) -> tuple[Atlas, csr_matrix]:
+    """An atlas's overlap matrix C and areas (support, effective c_kk, overlap counts), its
+    patches without support dropped: what Generate stores (build_atlas, and refine.py's children).
+    progress runs from `start` to 1."""
+    from .overlap import neighbour_pairs, overlap_matrix
+
     n = len(atlas)
-    report_stage(progress, 0.2, f"integrating overlaps of {n} patches")
+    report_stage(progress, start, f"integrating overlaps of {n} patches")
     C, support = overlap_matrix(
         atlas,
         index,
-        settings.quadrature,
-        progress=lambda f: report_stage(progress, 0.2 + 0.8 * f, "integrating overlaps"),
+        quadrature,
+        progress=lambda f: report_stage(progress, start + (1.0 - start) * f, "integrating overlaps"),
     )
     C = C.tocsr()
     while np.any(support <= 0):
@@ -561,7 +574,7 @@ def build_atlas_and_overlaps(
         support = support[keep]
         redo = np.flatnonzero(near[keep])
         if len(redo):
-            again, area = overlap_matrix(atlas, index, settings.quadrature, rows=redo)
+            again, area = overlap_matrix(atlas, index, quadrature, rows=redo)
             C = (diags((~near[keep]).astype(float)) @ C + again).tocsr()
             support[redo] = area[redo]
     C.eliminate_zeros()
