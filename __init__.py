@@ -3,7 +3,7 @@
 import bpy
 from bpy.props import PointerProperty
 
-from .operators import bake_image, bake_vertex, cli, generate, preview, properties, solve
+from .operators import bake_image, bake_vertex, cli, generate, preview, properties, refine, solve
 from .ui import panel
 
 # Registered in this order, unregistered in reverse (property groups before what uses them).
@@ -11,6 +11,7 @@ classes = (
     *properties.classes,
     *generate.classes,
     *solve.classes,
+    *refine.classes,
     *bake_vertex.classes,
     *bake_image.classes,
     *preview.classes,

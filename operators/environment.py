@@ -102,7 +102,7 @@ def plan(
     if not build:
         raise OvradError(
             "the meshes without an atlas of their own (they reflect light too) changed since the last "
-            "solve: press Solve again before baking"
+            "solve: press Solve again first"
         )
     try:
         atlas, C = build_atlas_and_overlaps(replace(surfaces, receiver=env), settings)

@@ -224,20 +224,7 @@ def prepare(
     atlas = attach_sheets(atlas, index)
     seconds["index"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    known, C_kept = usable(surfaces, atlas, list(kept), quadrature)
-    todo = np.flatnonzero(~known)
-    report_stage(progress, 0.05, "integrating overlaps" if len(todo) else "overlaps kept with the atlas")
-    C, support = overlap_matrix(
-        atlas,
-        index,
-        quadrature,
-        progress=lambda f: report_stage(progress, 0.05 + 0.35 * f, "integrating overlaps"),
-        rows=todo,
-    )
-    if C_kept is not None:
-        C = (C + C_kept).tocsr()
-        # exactly the row sums, as integrated C's are (its values come back in float32)
-        support[known] = np.asarray(C_kept.sum(axis=1)).ravel()[known]
+    C, support, known = overlaps(surfaces, atlas, index, quadrature, kept, progress)
     if drop_unsupported and np.any(support <= 0):
         keep = np.flatnonzero(support > 0)
         atlas, C, support = atlas.select(keep), C.tocsr()[keep][:, keep], support[keep]
@@ -253,6 +240,33 @@ def prepare(
     )
     seconds["transport"] = time.perf_counter() - t0
     return Problem(surfaces, atlas, index, C, T, T.rays, seconds, int(known.sum()))
+
+
+def overlaps(
+    surfaces: Surfaces,
+    atlas: Atlas,
+    index: SurfaceIndex,
+    quadrature: int = QUADRATURE,
+    kept: Sequence[KeptOverlaps] = (),
+    progress: StageCallback | None = None,
+) -> tuple[csr_matrix, np.ndarray, np.ndarray]:
+    """C and the support areas of an atlas (sheets attached to index), from the kept blocks that
+    still fit and integration of the other rows; and known (n,) bool, the rows the kept blocks gave."""
+    known, C_kept = usable(surfaces, atlas, list(kept), quadrature)
+    todo = np.flatnonzero(~known)
+    report_stage(progress, 0.05, "integrating overlaps" if len(todo) else "overlaps kept with the atlas")
+    C, support = overlap_matrix(
+        atlas,
+        index,
+        quadrature,
+        progress=lambda f: report_stage(progress, 0.05 + 0.35 * f, "integrating overlaps"),
+        rows=todo,
+    )
+    if C_kept is not None:
+        C = (C + C_kept).tocsr()
+        # exactly the row sums, as integrated C's are (its values come back in float32)
+        support[known] = np.asarray(C_kept.sum(axis=1)).ravel()[known]
+    return C, support, known
 
 
 def laplacian_smoothed(C: spmatrix, weight: float) -> spmatrix:

@@ -40,17 +40,26 @@ BUDGET = 0.2  # ... at most this share of the patches per pass, the largest indi
 
 
 def indicator(atlas: Atlas, radiosity: np.ndarray, C=None) -> np.ndarray:
-    """(n,) largest relative radiosity difference between each patch and the patches it overlaps:
-    C's off-diagonal pattern, or without C the same-sheet pairs whose bounding balls meet."""
+    """(n,) largest relative difference between each patch's radiosity and an overlapping
+    neighbour's (C's off-diagonal pattern, or without C the same-sheet pairs whose bounding balls
+    meet).
+
+    With C the patches are compared by their mean reconstructed radiosity over their supports,
+    (C B)_h / A_h, not by their coefficients B_h: with smooth beta and large overlaps the
+    coefficients oscillate around the field they reconstruct (C is ill-conditioned, ray noise
+    rings), and comparing them would refine everywhere."""
     L = np.asarray(radiosity, np.float64).reshape(len(atlas), -1) @ LUMINANCE[: np.shape(radiosity)[-1]]
-    w = np.asarray(atlas.effective_area, np.float64)
-    mean = float(np.sum(w * L) / max(np.sum(w), 1e-300)) if np.sum(w) > 0 else float(np.mean(L))
-    floor = FLOOR * max(mean, 1e-300)
     if C is not None:
+        C = C.tocsr()
+        L = (C @ L) / np.maximum(np.asarray(C.sum(axis=1)).ravel(), 1e-300)
         pairs = C.tocoo()
         i, j = pairs.row, pairs.col
     else:
         i, j = neighbour_pairs(atlas)
+    L = np.maximum(L, 0.0)
+    w = np.asarray(atlas.effective_area, np.float64)
+    mean = float(np.sum(w * L) / np.sum(w)) if np.sum(w) > 0 else float(np.mean(L))
+    floor = FLOOR * max(mean, 1e-300)
     off = i != j
     i, j = i[off], j[off]
     d = np.abs(L[i] - L[j]) / (0.5 * (L[i] + L[j]) + floor)

@@ -85,6 +85,16 @@ OPTIONS = [
     ("solve", "--tolerance", dict(type=float, help="stop when unshot light < this fraction of the emitted")),
     ("solve", "--rays-per-point", dict(type=int, help="hemisphere rays per surface sample (form factors)")),
     ("solve", "--min-rays", dict(type=int, help="transport rays cast at least, in all (0: no floor)")),
+    (
+        "solve",
+        "--refine",
+        dict(
+            type=int,
+            default=0,
+            help="adaptive patches: this many times, refine the atlas where the solved light varies "
+            "and solve again (default 0)",
+        ),
+    ),
     ("bake", "--target", dict(choices=("vertex", "image"), default="vertex")),
     (
         "bake",
@@ -226,6 +236,8 @@ def apply_settings(props, args, module) -> None:
         props.overlap = args.overlap
     if args.beta:
         props.beta = args.beta
+    if not 0 <= args.refine <= 4:
+        raise BatchError(f"--refine must be between 0 and 4 passes, got {args.refine}")
     for opt, prop in SOLVE_PROPS.items():
         if getattr(args, opt) is not None:
             setattr(props, prop, getattr(args, opt))
@@ -354,6 +366,16 @@ def generate(scene, receivers, names) -> list:
     return [o for o in scene.objects if o.get(names.PROP_SOURCE) in chosen]
 
 
+def refine(scene, receivers, atlases, names) -> list | None:
+    """Refine the atlases where the solved light varies; the new atlas objects, or None when no
+    patch was refined (the atlas objects are then the same)."""
+    count = sum(len(o.data.vertices) for o in atlases)
+    operator(bpy.ops.ovrad.refine_atlas)
+    chosen = {o.name for o in receivers}
+    finer = [o for o in scene.objects if o.get(names.PROP_SOURCE) in chosen]
+    return None if sum(len(o.data.vertices) for o in finer) == count else finer
+
+
 def bake(args, receivers, out: str, names) -> tuple[list[str], list[str]]:
     """Bake to vertex colours or images; returns (image files, receivers not baked for lack of UVs)."""
     if args.target == "vertex":
@@ -445,6 +467,12 @@ def run(args) -> dict:
         receivers = pick_receivers(scene, args.receivers, engine.names)
         atlases = stages.run("generate", generate, scene, receivers, engine.names)
         stats = stages.run("solve", run_solve, module)
+        for k in range(args.refine):
+            finer = stages.run(f"refine{k + 1}", refine, scene, receivers, atlases, engine.names)
+            if finer is None:
+                break
+            atlases = finer
+            stats = stages.run(f"solve{k + 2}", run_solve, module)
         images, skipped = stages.run("bake", bake, args, receivers, out, engine.names)
         stages.run("save", save, args, out)
         report = make_report(

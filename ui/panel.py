@@ -111,7 +111,9 @@ def draw_solve(layout) -> None:
     """Solve; while a solve runs, its progress and Cancel instead."""
     job = solve.running()
     if job is None:
-        layout.operator("ovrad.solve", icon="LIGHT_SUN")
+        row = layout.row(align=True)
+        row.operator("ovrad.solve", icon="LIGHT_SUN")
+        row.operator("ovrad.refine_atlas", text="Refine", icon="MOD_MULTIRES")
         return
     p = job.status()
     box = layout.box()

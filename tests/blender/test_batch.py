@@ -115,6 +115,17 @@ def test_quality_sets_its_level_and_the_expert_options_override_it(ovrad, run_bl
     )
 
 
+def test_refine_passes_refine_the_atlas_and_solve_it_again(ovrad, run_blender, tmp_path):
+    out, report = tmp_path / "r.blend", tmp_path / "r.json"
+    proc = batch(run_blender, CORNELL, *SMALL, "--refine", 1, "--output", out, "--report", report)
+    assert proc.returncode == 0, proc.stderr
+    r = json.loads(report.read_text())
+    assert {"generate", "solve", "refine1", "solve2", "bake"} <= set(r["seconds"])
+    first = int(proc.stdout.split("ovrad: ")[1].split(" patches on")[0].replace(",", ""))  # Generate's line
+    assert r["patches"] > first and r["converged"] is True
+    assert r["overlaps_kept"] == r["patches"]  # the refined atlas's C, kept by Refine Atlas
+
+
 def test_the_papers_solver_can_be_chosen(ovrad, run_blender, tmp_path):
     report = tmp_path / "r.json"
     proc = batch(run_blender, CORNELL, *SMALL, "--solver", "paper", "--output", tmp_path / "o.blend",
@@ -189,6 +200,7 @@ def test_in_place_overwrites_only_when_asked(ovrad, run_blender, tmp_path):
         (["--output", "{tmp}/o.blend", "--beta", "wide"], "argument --beta: invalid choice: 'wide'"),
         (["--output", "{tmp}/o.blend", "--tolerance", "2"], "--tolerance must be between 0 and 1"),
         (["--output", "{tmp}/o.blend", "--overlap", "9"], "--overlap must be between 1 and 4"),
+        (["--output", "{tmp}/o.blend", "--refine", "9"], "--refine must be between 0 and 4 passes"),
         (["--output", "{tmp}/o.blend", "--min-rays", "-5"], "--min-rays must be between 0 and"),
         (["--output", "{tmp}/o.blend", "--gather-rays", "-1"], "--gather-rays must be at least 0"),
         (["--output", "{tmp}/o.blend", "--gather-rays", "99999"], "--gather-rays must be between 0 and"),

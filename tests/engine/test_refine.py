@@ -53,11 +53,11 @@ def test_refined_atlas_is_a_partition_of_unity_with_exact_row_sums(beta):
     )
     rng = np.random.default_rng(2)
     B = rng.uniform(0.1, 1.0, (len(problem.atlas), 3))
-    finer, k = refine(problem.atlas, problem.index, B, threshold=0.5, budget=0.3, C=problem.C)
-    # without C the indicator compares every same-sheet pair whose bounding balls meet: a superset
-    # of C's pattern (overlapping supports), so it is never lower
+    finer, k = refine(problem.atlas, problem.index, B, threshold=0.2, budget=0.3, C=problem.C)
+    # with C the patches are compared by their supports' mean radiosity (C B)_h / A_h, which averages
+    # coefficient noise away: on random coefficients the indicator is far lower than on raw ones
     with_c, without = indicator(problem.atlas, B, problem.C), indicator(problem.atlas, B)
-    assert np.all(without >= with_c) and np.mean(without == with_c) > 0.5
+    assert np.mean(with_c) < 0.6 * np.mean(without)
     assert 0.1 * len(problem.atlas) < k <= 0.3 * len(problem.atlas)
     refined = prepare(s, finer, SolveSettings(min_rays=1 << 16), drop_unsupported=True)
     assert len(refined.atlas) > len(problem.atlas) + 2 * k
