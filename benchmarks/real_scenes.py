@@ -3,7 +3,9 @@
 Each builder fills an empty factory file with one class of scene that broke ovrad once (see the
 README's "Real scenes" table): a partition with a doorway, a box resting on a floor that runs under
 it and a shelf against a wall, an emitter filling an opening of the ceiling, linked duplicates,
-collection instances, a textured floor, and sky light through a window (constant and HDR).
+collection instances, a textured floor, and sky light through a window (constant and HDR); and
+lamps_doorway, the doorway's rooms lit by all four lamp types (point, spot, area, and a sun through
+a window), the second scene of benchmarks/speed_vs_error.py.
 Rooms are one welded-free mesh per surface grid (every vertex lies on one planar face, as in the
 Cornell benchmark), furniture is welded like a modeller's cube. Every vertex of every baked mesh
 is scored: vertices under a resting box (truth 0), on edges and on rims included. Only emitters
@@ -298,6 +300,68 @@ def doorway():
     return scene
 
 
+def _lamp(scene, name: str, kind: str, location, power: float, color, radius: float = 0.0):
+    """A point, spot or sun lamp at `location`, pointing down until aimed."""
+    data = bpy.data.lights.new(name, kind)
+    data.energy = power
+    data.color = color
+    if kind != "SUN":
+        data.shadow_soft_size = radius
+    obj = bpy.data.objects.new(name, data)
+    obj.location = location
+    scene.collection.objects.link(obj)
+    return obj
+
+
+def _aim(obj, direction) -> None:
+    """Turn a lamp so its -Z axis (where it shines) runs along `direction`."""
+    from mathutils import Vector
+
+    obj.rotation_euler = Vector(direction).to_track_quat("-Z", "Y").to_euler()
+
+
+# Where the lamps_doorway sun shines: 40 degrees up, from 20 degrees west of south (travel direction).
+LAMPS_SUN = (
+    math.cos(math.radians(40)) * math.sin(math.radians(20)),
+    math.cos(math.radians(40)) * math.cos(math.radians(20)),
+    -math.sin(math.radians(40)),
+)
+
+
+def lamps_doorway():
+    """The doorway's two rooms with all four lamp types: a point lamp and a spot lamp (its cone's
+    edge across the floor and the west wall) in the first room, an area lamp in the second, and a
+    sun shining through a window in the second room's south wall onto its floor. The world is
+    black: the sun is the only light from outside."""
+    scene = _new_scene("lamps_doorway")
+    white = diffuse("White", WHITE)
+    w, d, h, t = 2.4, 2.4, 2.4, 0.1
+    outer = room_faces(2 * w + t, d, h, skip=("south",))
+    window = (w + t + 0.5, w + t + 1.5, 0.9, 1.9)  # x range, z range of the second room's window
+    south = wall_with_hole(0.0, 2 * w + t, 0.0, h, window, 0.0, 1)
+    mesh("Rooms", list(outer.values()) + south, white)
+    door = (0.8, 1.6, 0.0, 2.0)
+    faces = []
+    for x, facing in ((w, 1), (w + t, -1)):
+        for q in wall_with_hole(0.0, d, 0.0, h, door, 0.0, facing):
+            faces.append([(x, p[0], p[2]) for p in q])
+    y0, y1, _, z1 = door
+    faces.append([(w, y0, 0), (w + t, y0, 0), (w + t, y0, z1), (w, y0, z1)])
+    faces.append([(w, y1, 0), (w, y1, z1), (w + t, y1, z1), (w + t, y1, 0)])
+    faces.append([(w, y0, z1), (w + t, y0, z1), (w + t, y1, z1), (w, y1, z1)])
+    mesh("Partition", faces, white)
+    _lamp(scene, "Point", "POINT", (1.6, 1.8, 1.9), 150.0, (1.0, 0.85, 0.6), radius=0.05)
+    spot = _lamp(scene, "Spot", "SPOT", (1.9, 0.4, 2.25), 1000.0, (0.7, 0.8, 1.0), radius=0.05)
+    spot.data.spot_size = math.radians(50)
+    spot.data.spot_blend = 0.1
+    _aim(spot, (0.6 - 1.9, 1.5 - 0.4, 0.0 - 2.25))
+    area_lamp(scene, "Area", (w + t + 0.9, 1.6, h - 0.05), 0.5, 120.0)
+    sun = _lamp(scene, "Sun", "SUN", (w + t + 1.0, -1.0, 3.0), 30.0, (1.0, 0.95, 0.85))
+    _aim(sun, LAMPS_SUN)
+    camera(scene, (0.3, 0.2, 1.7), (2 * w, 1.6, 0.8))
+    return scene
+
+
 def contact():
     """A room whose floor runs under a welded box resting on it, and a shelf touching a wall."""
     scene = _new_scene("contact")
@@ -404,6 +468,7 @@ def sky_hdr():
 
 SCENES = {
     "doorway": doorway,
+    "lamps_doorway": lamps_doorway,
     "contact": contact,
     "ceiling_opening": ceiling_opening,
     "duplicates": duplicates,

@@ -1,24 +1,30 @@
-"""Speed against error: ovrad (patch counts x beta x solver) and Cycles DIFFUSE vertex bakes, one run.
+"""Speed against error: ovrad's quality levels and Cycles DIFFUSE vertex bakes on two scenes, one run.
 
-Run (about 15 minutes on 2 cores):
-    scripts/blender -b --python-exit-code 1 -P benchmarks/speed_vs_error.py -- [--scene cornell]
+Run (about 40 minutes on 2 cores):
+    scripts/blender -b --python-exit-code 1 -P benchmarks/speed_vs_error.py -- \
+        [--scene cornell lamps_doorway] [--quality draft medium high] [--samples 16 64 256 1024] [--sweep]
 
-Both bake the same vertices (benchmarks/scenes.py: scenes/cornell.blend with receivers subdivided)
-and are scored by relative RMS error against the stored converged reference
-(benchmarks/reference/<scene>_4096.npz, make_reference.py): "error" over the reference's 'scored'
-vertices (those something sees), "all" over every receiving vertex but the emitters' (the floor
-under the blocks and the blocks' bottoms too, whose reference is ~0: a leak shows there). ovrad's
-bake points get the final gather (--gather rays per vertex, 0: indirect light from the patches,
-as in the paper) when their direct light is computed at the vertices. ovrad is timed over what a
-user waits for: reading the scene, generating the atlas, prepare (C and form factors), solve, and
-reconstruction at the vertices; exact and paper solvers
-share one atlas and prepare, whose measured times count in full for both. Cycles is timed over
-the bake call. Writes benchmarks/results/speed_vs_error.csv and .png (log-log), or
-speed_vs_error_<scene>.csv / .png for another scene.
+Scenes, each with its converged Cycles reference:
+- cornell: scenes/cornell.blend with every receiver subdivided into 1.75 cm cells (benchmarks/scenes.py),
+  lit by its emissive ceiling quad; benchmarks/reference/cornell_4096.npz (make_reference.py).
+- lamps: the same box lit by a point and a spot lamp instead; benchmarks/reference/lamps_4096.npz.
+- lamps_doorway: two rooms joined by a doorway, lit by a point, a spot, an area lamp and a sun
+  through a window (benchmarks/real_scenes.py); benchmarks/reference/real/lamps_doorway.npz
+  (make_real_reference.py).
 
-With --quality, only ovrad's quality levels are run (operators/properties.QUALITY: patch count,
-gather rays, min_rays; smooth beta, exact solver, direct at the vertices), to
-benchmarks/results/quality.csv (or quality_<scene>.csv).
+Each scene is saved once to a temporary .blend that every bake opens afresh. ovrad bakes through
+the batch command's own code (scripts/ovrad_batch.py, run in this process: `--input scene.blend
+--output out.blend --quality LEVEL`, vertex colours, direct light at the vertices), timed over its
+generate, solve and bake stages (reading the scene, the atlas, transport and solve, the vertex
+values; not opening or saving the file). Cycles is timed over its bake call (seed 0; the
+references use seeds 1 and up). Both are scored by relative RMS error at EVERY vertex of the baked
+meshes but the emitters' ("error"); "error_seen" leaves out the vertices nothing sees (the Cornell
+box's block bottoms and the floor under the blocks, whose reference is ~0; on lamps_doorway it
+equals "error").
+
+--sweep adds ovrad bakes over --counts x --betas x --solvers (batch options --patch-count, --beta,
+--solver; the file's other settings). Writes benchmarks/results/<name>.csv (one row per bake, a
+`scene` column) and <name>.png (log-log, one panel per scene); <name> is speed_vs_error by default.
 """
 
 from __future__ import annotations
@@ -26,9 +32,10 @@ from __future__ import annotations
 import argparse
 import csv
 import importlib.util
+import json
 import sys
+import tempfile
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import bpy
@@ -39,22 +46,34 @@ ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
 import make_reference  # noqa: E402  (benchmarks/ is not a package)
 
+import make_real_reference  # noqa: E402
+import real_scenes  # noqa: E402
 import scenes  # noqa: E402
 
 RESULTS = HERE / "results"
+SCENES = ("cornell", "lamps", "lamps_doorway")
 FIELDS = [
+    "scene",
     "method",
-    "beta",
-    "solver",
-    "direct",
-    "patches",
+    "quality",
     "samples",
     "seconds",
     "error",
-    "read_s",
+    "error_seen",
+    "patches",
+    "beta",
+    "solver",
+    "gather_rays",
+    "min_rays",
+    "rays",
     "generate_s",
+    "solve_s",
+    "bake_s",
 ]
-FIELDS += ["prepare_s", "solve_s", "reconstruct_s", "rays", "unshot", "gather", "min_rays", "all", "quality"]
+LEVELS = ("draft", "medium", "high")
+
+
+# --------------------------------------------------------------------------- helpers other benchmarks use
 
 
 def ovrad_package():
@@ -77,86 +96,9 @@ def vertex_triangles(surfaces, n_vertices: int) -> np.ndarray:
     return tri_of[:n_vertices]
 
 
-def run_ovrad(read, ref, counts, betas, solvers, rows, gathers=(256,), min_rays=None, quality="") -> None:
-    from ovrad.ovrad_addon.atlas import build_atlas
-    from ovrad.ovrad_addon.pipeline import SolveSettings, direct_light, prepare, radiance_at, solve
-    from ovrad.ovrad_addon.settings import AtlasSettings
-
-    surfaces, lamps, read_s, points, tri = read
-    mask = ref["scored"]
-    everything = ~ref["emitter"].astype(bool)
-    base = SolveSettings() if min_rays is None else SolveSettings(min_rays=min_rays)
-    for count in counts:
-        for beta in betas:
-            t = time.perf_counter()
-            atlas = build_atlas(surfaces, AtlasSettings(patch_count=count, beta=beta))
-            gen_s = time.perf_counter() - t
-            t = time.perf_counter()
-            problem = prepare(surfaces, atlas, base)
-            prep_s = time.perf_counter() - t
-            for rule in solvers:
-                t = time.perf_counter()
-                state = solve(problem, lamps, replace(base, rule=rule))
-                solve_s = time.perf_counter() - t
-                runs = [("points", g) for g in gathers] + ([] if quality else [("patches", 0)])
-                for direct, gather in runs:
-                    t = time.perf_counter()
-                    if direct == "points":
-                        light = direct_light(problem, lamps, replace(base, gather_rays=gather))
-                        L = radiance_at(problem, state.radiosity, points, tri, 1, state.first_shot, light)
-                    else:
-                        L = radiance_at(problem, state.radiosity, points, tri, 1)
-                    rec_s = time.perf_counter() - t
-                    total = read_s + gen_s + prep_s + solve_s + rec_s
-                    err = scenes.relative_rms(L, ref["radiance"], mask)
-                    err_all = scenes.relative_rms(L, ref["radiance"], everything)
-                    unshot = state.history[-1][1] if state.history else 0.0
-                    rows.append(
-                        dict(
-                            method="ovrad",
-                            beta=beta,
-                            solver=rule,
-                            direct=direct,
-                            patches=len(atlas),
-                            samples="",
-                            seconds=round(total, 3),
-                            error=round(err, 5),
-                            read_s=round(read_s, 3),
-                            generate_s=round(gen_s, 3),
-                            prepare_s=round(prep_s, 3),
-                            solve_s=round(solve_s, 3),
-                            reconstruct_s=round(rec_s, 3),
-                            rays=state.rays,
-                            unshot=f"{unshot:.2e}",
-                            gather=gather,
-                            min_rays=base.min_rays,
-                            all=round(err_all, 5),
-                            quality=quality,
-                        )
-                    )
-                    print(
-                        f"speed_vs_error: ovrad {quality} {len(atlas):6d} {beta:6s} {rule:5s} direct at "
-                        f"{direct:7s} gather {gather:4d} {total:7.2f} s  err {err:.4f} all {err_all:.4f}",
-                        flush=True,
-                    )
-
-
-def run_cycles(objects, ref, samples_list, rows) -> None:
-    n = sum(len(o.data.vertices) for o in objects)
-    mask = ref["scored"][:n]
-    for samples in samples_list:
-        values, seconds = scenes.cycles_vertex_bake(objects, samples, seed=0)
-        err = scenes.relative_rms(values, ref["radiance"][:n], mask)
-        rows.append(
-            dict(method="cycles", beta="", solver="", direct="", patches="", samples=samples)
-            | dict(seconds=round(seconds, 3), error=round(err, 5))
-        )
-        print(f"speed_vs_error: cycles {samples:5d} samples {seconds:7.2f} s  err {err:.4f}")
-
-
 def read_scene(scene, receivers, n_vertices: int):
-    """The scene as ovrad reads it (every rendered mesh receives, the baked ones first; lamps), timed;
-    the points and triangles of the first n_vertices vertices."""
+    """The scene as ovrad's engine reads it (every rendered mesh receives, the given ones first;
+    lamps), timed; the points and triangles of the first n_vertices vertices (gather_bench.py)."""
     pkg = ovrad_package()
     scene_io = pkg.operators.scene_io
     t = time.perf_counter()
@@ -171,126 +113,214 @@ def read_scene(scene, receivers, n_vertices: int):
     return s, lamps, read_s, s.vertices[:n_vertices], vertex_triangles(s, n_vertices), meshes
 
 
-def plot(rows, path: Path, title: str, noise: float) -> None:
+# --------------------------------------------------------------------------- scenes and scoring
+
+
+class Scene:
+    """A benchmark scene saved to a .blend, its reference and the masks it is scored over."""
+
+    def __init__(self, name: str, folder: Path):
+        self.name = name
+        self.blend = folder / f"{name}.blend"
+        if name == "lamps_doorway":
+            self.ref = make_real_reference.load(name)
+            real_scenes.build(name, self.blend)
+            self.keep_world = True  # the reference keeps the (black) world as the scene has it
+        else:
+            self.ref = make_reference.load(HERE / "reference" / f"{name}_4096.npz")
+            scenes.open_cornell(self.ref["meta"]["spacing_m"], lamps=name == "lamps")
+            bpy.ops.wm.save_as_mainfile(filepath=str(self.blend), check_existing=False)
+            self.keep_world = False
+        n = len(self.ref["radiance"])
+        emitter = self.ref.get("emitter", np.zeros(n, bool)).astype(bool)
+        self.every = ~emitter
+        self.seen = self.ref.get("scored", self.every).astype(bool) & self.every
+        self.names = [str(s) for s in self.ref["object_names"]]
+        # Cycles bakes the objects with a vertex to score (not the emitting quad).
+        self.baked = [nm for k, nm in enumerate(self.names) if self.every[self.ref["object"] == k].any()]
+        self.open()
+        positions, _ = real_scenes.vertex_positions([bpy.context.scene.objects[nm] for nm in self.names])
+        gap = np.abs(positions - self.ref["positions"]).max() if len(positions) == n else np.inf
+        if gap > 1e-5:
+            raise SystemExit(f"speed_vs_error: {name}: the vertices do not match the reference ({gap:.2e})")
+
+    def open(self):
+        bpy.ops.wm.open_mainfile(filepath=str(self.blend))
+        return bpy.context.scene
+
+    def score(self, attribute: str) -> tuple[float, float]:
+        """Relative RMS error (every vertex, seen vertices) of a POINT colour attribute of the open file."""
+        values, _ = real_scenes.baked_values(bpy.context.scene, self.names, attribute)
+        if not np.all(np.isfinite(values[self.every])):
+            raise SystemExit(f"speed_vs_error: {self.name}: '{attribute}' is missing on scored vertices")
+        ref = self.ref["radiance"]
+        return scenes.relative_rms(values, ref, self.every), scenes.relative_rms(values, ref, self.seen)
+
+    def noise(self) -> float:
+        return float(self.ref["meta"].get("relative_rms_noise", float("nan")))
+
+
+def run_cycles(sc: Scene, samples_list, rows) -> None:
+    for samples in samples_list:
+        scene = sc.open()
+        objects = [scene.objects[nm] for nm in sc.baked]
+        _, seconds = scenes.cycles_vertex_bake(objects, samples, seed=0, keep_world=sc.keep_world)
+        err, seen = sc.score(scenes.BAKE_ATTRIBUTE)
+        rows.append(
+            dict(scene=sc.name, method="cycles", samples=samples, seconds=round(seconds, 3))
+            | dict(error=round(err, 5), error_seen=round(seen, 5))
+        )
+        print(
+            f"speed_vs_error: {sc.name} cycles {samples:5d} spp {seconds:8.2f} s  error {err:.4f}", flush=True
+        )
+
+
+def batch_module():
+    """scripts/ovrad_batch.py as a module (its run() is the batch command without the process)."""
+    if "ovrad_batch" not in sys.modules:
+        spec = importlib.util.spec_from_file_location("ovrad_batch", ROOT / "scripts" / "ovrad_batch.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        sys.modules["ovrad_batch"] = module
+    return sys.modules["ovrad_batch"]
+
+
+def run_ovrad(sc: Scene, options: list[str], label: str, folder: Path, rows) -> None:
+    """One batch bake of the scene's file with these batch options, timed and scored."""
+    batch = batch_module()
+    out, report = folder / f"{sc.name}_ovrad.blend", folder / f"{sc.name}_ovrad.json"
+    args = ["--input", str(sc.blend), "--output", str(out), "--report", str(report), *options]
+    try:
+        rep = batch.run(batch.parse(args))
+    except batch.BatchError as e:
+        raise SystemExit(f"speed_vs_error: {sc.name}: ovrad {' '.join(options)}: {e}") from None
+    s = rep["seconds"]
+    seconds = s["generate"] + s["solve"] + s["bake"]
+    err, seen = sc.score(rep["attribute"])
+    rows.append(
+        dict(scene=sc.name, method="ovrad", quality=label, seconds=round(seconds, 3))
+        | dict(error=round(err, 5), error_seen=round(seen, 5), patches=rep["patches"])
+        | dict(beta=rep["beta"], solver=rep["solver"], gather_rays=rep["gather_rays"])
+        | dict(min_rays=rep["min_rays"], rays=rep["rays"], generate_s=s["generate"])
+        | dict(solve_s=s["solve"], bake_s=s["bake"])
+    )
+    print(
+        f"speed_vs_error: {sc.name} ovrad {label:24s} {rep['patches']:6d} patches {seconds:8.2f} s  "
+        f"error {err:.4f}",
+        flush=True,
+    )
+
+
+# --------------------------------------------------------------------------- plot
+
+
+def plot(rows, scenes_run: list[Scene], path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7, 5))
-    cyc = [r for r in rows if r["method"] == "cycles"]
-    ax.plot([r["seconds"] for r in cyc], [r["error"] for r in cyc], "k-o", label="Cycles DIFFUSE bake")
-    for r in cyc:
-        ax.annotate(
-            f"{r['samples']} spp",
-            (r["seconds"], r["error"]),
-            fontsize=7,
-            xytext=(4, 2),
-            textcoords="offset points",
+    fig, axes = plt.subplots(1, len(scenes_run), figsize=(6.5 * len(scenes_run), 5), squeeze=False)
+    for ax, sc in zip(axes[0], scenes_run, strict=True):
+        mine = [r for r in rows if r["scene"] == sc.name]
+        cyc = sorted((r for r in mine if r["method"] == "cycles"), key=lambda r: r["seconds"])
+        if cyc:
+            xs, ys = [r["seconds"] for r in cyc], [r["error"] for r in cyc]
+            ax.plot(xs, ys, "k-o", label="Cycles DIFFUSE bake")
+            ax.plot(xs, [y / 3 for y in ys], color="grey", ls="--", lw=0.8, label="1/3 of Cycles' error")
+            for r in cyc:
+                ax.annotate(
+                    f"{r['samples']} spp",
+                    (r["seconds"], r["error"]),
+                    fontsize=7,
+                    xytext=(4, 2),
+                    textcoords="offset points",
+                )
+        levels = [r for r in mine if r["method"] == "ovrad" and r["quality"] in LEVELS]
+        if levels:
+            levels.sort(key=lambda r: LEVELS.index(r["quality"]))
+            ax.plot(
+                [r["seconds"] for r in levels],
+                [r["error"] for r in levels],
+                "C0-s",
+                label="ovrad quality levels (batch --quality)",
+            )
+            for r in levels:
+                ax.annotate(
+                    r["quality"],
+                    (r["seconds"], r["error"]),
+                    fontsize=7,
+                    xytext=(4, -9),
+                    textcoords="offset points",
+                    color="C0",
+                )
+        sweep = [r for r in mine if r["method"] == "ovrad" and r["quality"] not in LEVELS]
+        for k, key in enumerate(sorted({(r["beta"], r["solver"]) for r in sweep})):
+            pts = sorted(
+                (r["patches"], r["seconds"], r["error"]) for r in sweep if (r["beta"], r["solver"]) == key
+            )
+            ax.plot(
+                [p[1] for p in pts],
+                [p[2] for p in pts],
+                f"C{k + 1}-^",
+                label=f"ovrad patch counts, {key[0]} beta, {key[1]} solver",
+            )
+        if np.isfinite(sc.noise()):
+            ax.axhline(sc.noise(), color="grey", lw=0.8, ls=":", label=f"reference noise ({sc.noise():.3f})")
+        meta = sc.ref["meta"]
+        ax.set_title(
+            f"{sc.name}: {int(sc.every.sum())} vertices, reference {meta['samples']} spp", fontsize=10
         )
-    styles = {
-        ("smooth", "exact", "points"): ("C0-s", "smooth beta, exact solver, direct at vertices"),
-        ("box", "exact", "points"): ("C1-^", "box beta, exact solver, direct at vertices"),
-        ("box", "paper", "points"): ("C2-.v", "box beta, paper's rule, direct at vertices"),
-        ("smooth", "exact", "patches"): ("C0--x", "smooth beta, exact solver, all from patches"),
-        ("box", "exact", "patches"): ("C1--x", "box beta, exact solver, all from patches"),
-    }
-    for key, (style, label) in styles.items():
-        pts = sorted(
-            (r["seconds"], r["error"])
-            for r in rows
-            if r["method"] == "ovrad" and (r["beta"], r["solver"], r["direct"]) == key
-        )
-        if pts:
-            ax.plot([p[0] for p in pts], [p[1] for p in pts], style, label=f"ovrad {label}")
-    if cyc:
-        ax.plot(
-            [r["seconds"] for r in cyc],
-            [r["error"] / 3 for r in cyc],
-            color="grey",
-            ls="--",
-            lw=0.8,
-            label="goal: 1/3 of Cycles' error",
-        )
-    if np.isfinite(noise):
-        ax.axhline(noise, color="grey", lw=0.8, ls=":", label=f"reference noise ({noise:.3f})")
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel("wall time of the whole bake (s)")
-    ax.set_ylabel("relative RMS error vs 4096-spp reference")
-    ax.set_title(title)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("wall time of the bake (s)")
+        ax.set_ylabel("relative RMS error at every vertex")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=110)
 
 
-def run_quality(read, ref, levels, scene: str, rows) -> int:
-    """The quality levels of the panel and the batch (smooth beta, exact solver, direct at vertices)."""
-    quality = ovrad_package().operators.properties.QUALITY
-    for level in levels or list(quality):
-        q = quality[level.upper()]
-        run_ovrad(
-            read,
-            ref,
-            [q["patch_count"]],
-            ["smooth"],
-            ["exact"],
-            rows,
-            [q["gather_rays"]],
-            q["min_rays"],
-            level.upper(),
-        )
-    out = RESULTS / ("quality.csv" if scene == "cornell" else f"quality_{scene}.csv")
-    with open(out, "w", newline="") as fh:
-        w = csv.DictWriter(fh, FIELDS)
-        w.writeheader()
-        w.writerows(rows)
-    print(f"speed_vs_error: wrote {out}")
-    return 0
+# --------------------------------------------------------------------------- main
 
 
 def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog="speed_vs_error.py", description=__doc__.split("\n")[0])
-    p.add_argument("--scene", choices=("cornell", "lamps"), default="cornell")
-    p.add_argument("--counts", type=int, nargs="+", default=[500, 1500, 4000, 10000])
-    p.add_argument("--betas", nargs="+", default=["box", "smooth"])
-    p.add_argument("--solvers", nargs="+", default=["exact", "paper"])
-    p.add_argument("--samples", type=int, nargs="*", default=[16, 64, 256, 1024])
-    p.add_argument("--gather", type=int, nargs="+", default=[256], help="final-gather rays (0: off)")
-    p.add_argument("--min-rays", type=int, help="transport rays at least (default: SolveSettings')")
-    p.add_argument("--quality", nargs="*", help="run these quality levels only (none listed: all)")
-    p.add_argument("--name", help="results file name without .csv (default: speed_vs_error[_<scene>])")
-    p.add_argument("--reference", help="npz (default benchmarks/reference/<scene>_4096.npz)")
-    a = p.parse_args(argv)
-    ref = make_reference.load(
-        Path(a.reference) if a.reference else HERE / "reference" / f"{a.scene}_4096.npz"
+    p.add_argument("--scene", nargs="+", choices=SCENES, default=["cornell", "lamps_doorway"])
+    p.add_argument(
+        "--quality", nargs="*", choices=LEVELS, default=list(LEVELS), help="none listed: no levels"
     )
-    scene = scenes.open_cornell(ref["meta"]["spacing_m"], lamps=a.scene == "lamps")
-    receivers = scenes.receivers(scene)
-    table = scenes.vertex_table(receivers)
-    n = len(table["positions"])
-    # Cycles bakes the receivers (not the emitter); ovrad reads every mesh, receivers first in the same order.
-    *read, _ = read_scene(scene, receivers, len(ref["positions"]))
-    gap = np.abs(read[3] - ref["positions"]).max()
-    if gap > 1e-5 or np.abs(table["positions"] - ref["positions"][:n]).max() > 1e-5:
-        raise SystemExit(f"speed_vs_error: vertices do not match the reference (off by {gap:.2e})")
-    rows: list[dict] = []
+    p.add_argument("--samples", type=int, nargs="*", default=[16, 64, 256, 1024], help="Cycles samples")
+    p.add_argument("--sweep", action="store_true", help="also ovrad over --counts x --betas x --solvers")
+    p.add_argument("--counts", type=int, nargs="+", default=[500, 1500, 4000, 10000])
+    p.add_argument("--betas", nargs="+", choices=("box", "smooth"), default=["box", "smooth"])
+    p.add_argument("--solvers", nargs="+", choices=("exact", "paper"), default=["exact", "paper"])
+    p.add_argument("--name", default="speed_vs_error", help="results file name without .csv")
+    a = p.parse_args(argv)
+    folder = Path(tempfile.mkdtemp(prefix="ovrad-speed-"))
     RESULTS.mkdir(exist_ok=True)
-    if a.quality is not None:
-        return run_quality(read, ref, a.quality, a.scene, rows)
-    run_cycles(receivers, ref, a.samples, rows)
-    run_ovrad(read, ref, a.counts, a.betas, a.solvers, rows, a.gather, a.min_rays)
-    out = RESULTS / ("speed_vs_error.csv" if a.scene == "cornell" else f"speed_vs_error_{a.scene}.csv")
-    if a.name:
-        out = RESULTS / f"{a.name}.csv"
-    with open(out, "w", newline="") as fh:
-        w = csv.DictWriter(fh, FIELDS)
-        w.writeheader()
-        w.writerows(rows)
-    meta = ref["meta"]
-    title = f"{a.scene}: {int(ref['scored'].sum())} vertices, reference {meta['samples']} spp"
-    plot(rows, out.with_suffix(".png"), title, meta.get("relative_rms_noise", float("nan")))
+    out = RESULTS / f"{a.name}.csv"
+    rows: list[dict] = []
+    done: list[Scene] = []
+    for name in a.scene:
+        sc = Scene(name, folder)
+        run_cycles(sc, a.samples, rows)
+        for level in a.quality:
+            run_ovrad(sc, ["--quality", level], level, folder, rows)
+        if a.sweep:
+            for count in a.counts:
+                for beta in a.betas:
+                    for solver in a.solvers:
+                        options = ["--patch-count", str(count), "--beta", beta, "--solver", solver]
+                        run_ovrad(sc, options, f"{count} {beta} {solver}", folder, rows)
+        done.append(sc)
+        with open(out, "w", newline="") as fh:  # after every scene: a partial run keeps its rows
+            w = csv.DictWriter(fh, FIELDS)
+            w.writeheader()
+            w.writerows(rows)
+    plot(rows, done, out.with_suffix(".png"))
+    meta = {sc.name: dict(sc.ref["meta"]) for sc in done}
+    print(f"speed_vs_error: references {json.dumps(meta)}")
     print(f"speed_vs_error: wrote {out} and {out.with_suffix('.png')}")
     return 0
 
