@@ -18,10 +18,10 @@ _OBJECT = ObjectSettings()
 _SOLVE = SolveSettings()
 
 # Quality levels (panel and batch): the settings each sets; MEDIUM is the engine's defaults. Chosen
-# on the Cornell box, every vertex scored (benchmarks/speed_vs_error.py): with the final gather the
-# error follows the gather rays (2 000 box patches: 2.2 / 1.75 / 1.5 / 1.4 % with 128 / 256 / 512 /
-# 1 024 rays), the patch count barely (3 000: 1.7 % at 256 rays) and the transport rays not at all
-# above 2^19-2^20 (2.21 % with 4 M, 2.21 % with 0.5 M at 1 000 patches and 256 rays).
+# on the Cornell box, every vertex scored: with the final gather and its near field the error
+# follows the gather rays (2 000 smooth patches, 1 M transport rays: 2.2 / 1.7 / 1.45 / 1.35 % with
+# 128 / 256 / 512 / 1 024 rays), the patch count barely (3 000: 1.7 % at 256 rays) and the transport
+# rays not at all above 2^19-2^20. Measured against Cycles by benchmarks/speed_vs_error.py (README).
 QUALITY = {
     "DRAFT": dict(patch_count=1000, gather_rays=128, min_rays=1 << 19),
     "MEDIUM": dict(patch_count=_ATLAS.patch_count, gather_rays=_SOLVE.gather_rays, min_rays=_SOLVE.min_rays),
