@@ -88,9 +88,15 @@ def _lift(atlas, index) -> np.ndarray:
 def contacts(atlas, index) -> Contacts:
     """The anchors and cut flags of an atlas on an index (cached on the index): the stored anchor,
     else the on-sheet rule point nearest the centre; cut where a rule point is hidden from it."""
+    # alpha_at asks on every call (each transport and gather chunk): the same atlas object answers
+    # without hashing its arrays again; an equal atlas in another object is found by its content
+    same = index.cache.get(("contacts of", id(atlas)))
+    if same is not None and same[0] is atlas:
+        return same[1]
     key = _key(atlas)
     hit = index.cache.get(key)
     if hit is not None:
+        index.cache[("contacts of", id(atlas))] = (atlas, hit)
         return hit
     n = len(atlas)
     lift = _lift(atlas, index)
@@ -109,6 +115,7 @@ def contacts(atlas, index) -> Contacts:
     anchor = np.where(np.isfinite(anchor), anchor, atlas.centers)
     out = Contacts(anchor, lift, cut)
     index.cache[key] = out
+    index.cache[("contacts of", id(atlas))] = (atlas, out)
     return out
 
 
