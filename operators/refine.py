@@ -1,10 +1,10 @@
 """Operator: Refine Atlas, smaller patches where the solved light varies (ovrad_addon/refine.py).
 
 After a solve, each patch whose radiosity differs much from an overlapping neighbour's (a shadow
-edge, the fall-off under a lamp, a corner) is replaced by five smaller ones covering it; evenly lit
-patches stay as they are. The atlas objects are written again as Generate writes them (with their
-block of C), so Solve then solves the refined atlas. Refining again goes one level deeper, down to a
-quarter of the generated radius.
+edge, the fall-off under a lamp, a corner) is replaced by five smaller ones covering it (four for
+box-beta squares); evenly lit patches stay as they are. The atlas objects are written again as
+Generate writes them (with their block of C), so Solve then solves the refined atlas. Refining again
+goes one level deeper, down to a quarter of the generated radius.
 """
 
 from __future__ import annotations
@@ -74,7 +74,7 @@ class OVRAD_OT_refine_atlas(bpy.types.Operator):
     bl_label = "Refine Atlas"
     bl_description = (
         "Replace the patches where the solved light varies (a patch and an overlapping neighbour disagree) "
-        "by five smaller ones each, then solve again"
+        "by four or five smaller ones each, then solve again"
     )
     bl_options = {"REGISTER", "UNDO"}
 

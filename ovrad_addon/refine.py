@@ -1,15 +1,18 @@
 """Adaptive patches: smaller patches where a solution varies, large ones where it does not.
 
 Overlapping supports make refinement local (the paper names it as future work): a patch is
-replaced by five children covering its support, and nothing else changes. No remeshing, no
+replaced by five (or four) children covering its support, and nothing else changes. No remeshing, no
 constraint between neighbours: alpha is recomputed from memberships, so the partition of unity and
 the reciprocity of the transport hold as on any atlas.
 
 - A disk of radius r is covered by the four disks of radius r / sqrt(2) centred at
   (+-r/2, +-r/2) in its tangent frame (each covers one quadrant of its bounding square); a square
   of half side a by the four squares of half side a/2 tiling it. So every point the parent held is
-  held by a child: coverage stays whole. The parent's centre lies on all four rims, where smooth
-  beta is zero: a fifth child of radius r/2 sits there, so every point has a child with beta > 0.
+  held by a child: coverage stays whole. A disk's centre lies on all four rims (where smooth beta
+  is zero, and box beta only just reaches): a fifth child of radius r/2 sits there, also in squares
+  with smooth beta. A box-beta square gets its four quadrants only, so squares generated without
+  overlap stay a tiling: the classical limit, where the transport's reciprocity is tested, survives
+  refinement.
 - Children lie on the parent's sheet (same plane, normal, triangle and side); those whose support
   holds none of the sheet (a border square's quadrant off the surface) get no area and are dropped.
 - A patch cut by a contact line was split into pieces with one anchor each (contact.py): the
@@ -83,21 +86,24 @@ def _groups(atlas: Atlas) -> np.ndarray:
 
 
 def children(atlas: Atlas, parents: np.ndarray) -> Atlas:
-    """The five children of each patch in `parents` (indices of one patch per disk or square), with
+    """The children of each patch in `parents` (indices of one patch per disk or square), with
     no anchor (found again) and no areas yet."""
     p = np.asarray(parents, np.int64)
     sign = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1], [0, 0]], float)
     q = np.repeat(p, len(sign))
     s = np.tile(sign, (len(p), 1))
+    # the middle child: for disks (their quadrant disks only just cover the centre, which lies on
+    # all four rims) and with smooth beta (zero on those rims); a box-beta square's quadrants tile it
+    middle = np.all(s == 0, axis=1)
+    keep = ~middle | (atlas.shapes[q] != SHAPE_SQUARE) | (atlas.beta == "smooth")
+    q, s = q[keep], s[keep]
     r = atlas.radii[q]
     square = atlas.shapes[q] == SHAPE_SQUARE
     step = 0.5 * r  # the quadrants' centres, in both shapes
     centers = atlas.centers[q] + step[:, None] * (
         s[:, :1] * atlas.tangents[q] + s[:, 1:] * atlas.bitangents[q]
     )
-    radii = np.where(square, 0.5 * r, r / np.sqrt(2.0))
-    middle = np.all(s == 0, axis=1)
-    radii = np.where(middle, 0.5 * r, radii)
+    radii = np.where(np.all(s == 0, axis=1), 0.5 * r, np.where(square, 0.5 * r, r / np.sqrt(2.0)))
     k = len(q)
     extent_part = atlas.thickness[q] - 1e-3 * r  # the scene-extent share placement added
     return Atlas(
@@ -132,7 +138,8 @@ def refine(
     only: np.ndarray | None = None,
 ) -> tuple[Atlas, int]:
     """The atlas with its most varying patches (indicator above `threshold`, at most `budget` x n of
-    them, largest indicator first) each replaced by five children; and how many were replaced.
+    them, largest indicator first) each replaced by its children (five; four for box-beta squares); and
+    how many were replaced.
 
     atlas as solved (sheets attached to `index`), C its overlap matrix if at hand (else its
     neighbour pairs are searched); smallest: the least radius a refined patch may have (default

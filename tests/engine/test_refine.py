@@ -18,7 +18,7 @@ from ovrad_addon.surfaces import Surfaces
 
 def test_children_cover_their_parent():
     s = scenes.cube()
-    atlas = build_atlas(s, AtlasSettings(patch_count=200, shapes="AUTO"))
+    atlas = build_atlas(s, AtlasSettings(patch_count=200, shapes="AUTO", beta="smooth"))
     kids = children(atlas, np.arange(len(atlas)))
     rng = np.random.default_rng(1)
     for shape in (0, 1):
@@ -70,6 +70,37 @@ def test_refined_atlas_is_a_partition_of_unity_with_exact_row_sums(beta):
     C = refined.C
     np.testing.assert_allclose(np.asarray(C.sum(axis=1)).ravel(), refined.atlas.support_area, rtol=1e-9)
     assert np.all(refined.atlas.support_area > 0)
+
+
+def test_reciprocity_survives_refinement_in_the_classical_limit():
+    """Box-beta squares tiling a cube without overlap, a third of them refined (their four children
+    tile them): still a tiling, and G stays symmetric within binomial noise (A_h F_hk = A_k F_kh),
+    as test_form_factors checks on the unrefined atlas."""
+    s = scenes.cube(inward=True)
+    atlas = build_atlas(s, AtlasSettings(patch_size=0.25, overlap=1.0, beta="box", shapes="SQUARES"))
+    problem = prepare(s, atlas, SolveSettings(min_rays=1 << 18))
+    B = np.random.default_rng(3).uniform(0.1, 1.0, (len(problem.atlas), 3))
+    finer, k = refine(problem.atlas, problem.index, B, threshold=-1.0, budget=0.35, C=problem.C)
+    assert k > 0.3 * len(problem.atlas)
+    refined = prepare(s, finer, SolveSettings(min_rays=1 << 22), drop_unsupported=True)
+    n = len(refined.atlas)
+    assert n == len(problem.atlas) + 3 * k
+    C = refined.C.tocsr()
+    assert abs(C - C.multiply(np.eye(n) > 0)).sum() < 1e-6 * C.diagonal().sum()  # no overlaps
+    T = refined.transport
+    G = T.geometric.toarray()
+    A = refined.atlas.support_area
+    rays = np.bincount(T.points.owner, minlength=n) * (T.rays / len(T.points.owner))
+    F = G / A[:, None]
+    var = A[:, None] ** 2 * F * (1 - F) / rays[:, None]
+    # pairs where both directions expect 25 hits or more: there the binomial counts are near
+    # normal (a pair of far small patches expecting 2 hits is not; with 16 M rays instead of 4 M
+    # every pair measured z < 3.5, so those tails were counting noise, not bias)
+    hits = F * rays[:, None]
+    both = (hits > 25) & (hits.T > 25)
+    z = np.abs(G - G.T)[both] / np.sqrt(var + var.T)[both]
+    assert both.sum() > 10000  # faces see each other: most pairs are compared
+    assert z.max() < 4.5
 
 
 def test_furnace_stays_exact_with_refinement():
