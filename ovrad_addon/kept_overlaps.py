@@ -65,7 +65,11 @@ def kept_form(C: csr_matrix) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     pairs = triu(C + C.T, k=1).tocoo()
     order = np.lexsort((pairs.col, pairs.row))
     i, j = pairs.row[order], pairs.col[order]
-    values = np.column_stack([np.asarray(C[i, j]).ravel(), np.asarray(C[j, i]).ravel()])
+    # C[i, j] with empty index arrays is a (1, 0) sparse matrix, not an empty array: an atlas whose
+    # patches overlap nothing (a few small separate pieces) has no pairs
+    values = np.zeros((0, 2))
+    if len(i):
+        values = np.column_stack([np.asarray(C[i, j]).ravel(), np.asarray(C[j, i]).ravel()])
     return (
         np.column_stack([i, j]).astype(np.int32).reshape(-1, 2),
         values.astype(np.float32).reshape(-1, 2),

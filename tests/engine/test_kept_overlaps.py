@@ -7,6 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from scipy.sparse import csr_matrix
 
 import scenes
 from ovrad_addon.atlas import build_atlas_and_overlaps
@@ -139,6 +140,15 @@ def test_a_kept_block_comes_back_as_c_in_float32(room):
     back = k.matrix()
     assert back.nnz == C.nnz
     assert abs(back - C).max() <= 2.0**-24 * abs(C).max()
+
+
+def test_a_block_without_overlaps_is_kept_too():
+    # patches that overlap nothing (the environment atlas of a few small separate cubes): no edges
+    C = csr_matrix(np.diag([0.5, 0.25, 0.125]))
+    edges, values, diagonal = kept_form(C)
+    assert edges.shape == (0, 2) and values.shape == (0, 2)
+    back = KeptOverlaps(0, 3, "", edges, values, diagonal).matrix()
+    assert abs(back - C).max() == 0.0
 
 
 def test_a_solve_with_the_kept_c_is_the_solve_that_integrates_it(room):
