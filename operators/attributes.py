@@ -150,15 +150,6 @@ def write_color(mesh, name: str, values: np.ndarray, domain: str) -> None:
     mesh.update()
 
 
-def read_point_attribute(mesh, name: str) -> np.ndarray:
-    """One POINT attribute as (n,) or (n, k); raises KeyError if missing."""
-    attr = mesh.attributes[name]
-    key, comps, dtype = _LAYOUT[attr.data_type]
-    out = np.empty(len(mesh.vertices) * comps, dtype)
-    attr.data.foreach_get(key, out)
-    return out if comps == 1 else out.reshape(-1, comps)
-
-
 def read_attribute(mesh, name: str) -> np.ndarray:
     """One attribute of any domain as (n,) or (n, k); raises KeyError if missing."""
     attr = mesh.attributes[name]
@@ -166,6 +157,11 @@ def read_attribute(mesh, name: str) -> np.ndarray:
     out = np.empty(len(attr.data) * comps, dtype)
     attr.data.foreach_get(key, out)
     return out if comps == 1 else out.reshape(-1, comps)
+
+
+def read_point_attribute(mesh, name: str) -> np.ndarray:
+    """One POINT attribute as (n,) or (n, k), n the mesh's points; raises KeyError if missing."""
+    return read_attribute(mesh, name)
 
 
 def _atlas_mesh(name: str, atlas: Atlas, kept: KeptOverlaps | None = None) -> bpy.types.Mesh:

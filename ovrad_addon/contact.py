@@ -47,8 +47,9 @@ def _key(atlas) -> tuple:
     return ("contacts", h(atlas.centers), h(atlas.radii), h(atlas.sheet), h(atlas.anchor))
 
 
-def _checked(atlas, index) -> np.ndarray:
-    """Patches the contact rule applies to: on planar sheets, not clutter balls."""
+def planar_patches(atlas, index) -> np.ndarray:
+    """Indices of the patches on planar sheets, not clutter balls: those the contact rule applies to
+    and refine.py may refine."""
     planar = index.planar[index.sheet_chart[atlas.sheet]] & ~index.sheet_clutter[atlas.sheet]
     return np.flatnonzero(planar & (atlas.shapes != SHAPE_BALL))
 
@@ -102,7 +103,7 @@ def contacts(atlas, index) -> Contacts:
     lift = _lift(atlas, index)
     anchor = atlas.centers.copy() if atlas.anchor is None else np.asarray(atlas.anchor, np.float64).copy()
     cut = np.zeros(n, bool)
-    ids = _checked(atlas, index)
+    ids = planar_patches(atlas, index)
     if len(ids):
         owner, points, _, _ = _rule(atlas, index, ids)
         todo = ~np.all(np.isfinite(anchor[ids]), axis=1)
@@ -138,7 +139,7 @@ def split_at_contacts(atlas, index, pieces: int = MAX_PIECES, least: float = LEA
     sees the same supports.
     """
     n = len(atlas)
-    ids = _checked(atlas, index)
+    ids = planar_patches(atlas, index)
     other = np.setdiff1d(np.arange(n), ids)
     rows, anchors, tris = [other], [atlas.centers[other]], [np.full(len(other), -1, np.int64)]
     if len(ids):

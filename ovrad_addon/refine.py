@@ -31,8 +31,8 @@ from __future__ import annotations
 import numpy as np
 
 from .atlas import Atlas
-from .contact import split_at_contacts
-from .names import SHAPE_BALL, SHAPE_SQUARE
+from .contact import planar_patches, split_at_contacts
+from .names import SHAPE_SQUARE
 from .overlap import neighbour_pairs
 
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
@@ -73,8 +73,9 @@ def indicator(atlas: Atlas, radiosity: np.ndarray, C=None) -> np.ndarray:
 
 def refinable(atlas: Atlas, index, smallest: float) -> np.ndarray:
     """(n,) bool: planar disks and squares that are larger than `smallest` (a radius)."""
-    planar = index.planar[index.sheet_chart[atlas.sheet]] & ~index.sheet_clutter[atlas.sheet]
-    return planar & (atlas.shapes != SHAPE_BALL) & (atlas.radii > smallest * (1.0 + 1e-9))
+    ok = np.zeros(len(atlas), bool)
+    ok[planar_patches(atlas, index)] = True
+    return ok & (atlas.radii > smallest * (1.0 + 1e-9))
 
 
 def _groups(atlas: Atlas) -> np.ndarray:

@@ -69,8 +69,7 @@ def test_shadow_ray_from_a_concave_edge_is_not_blocked_by_the_neighbouring_face(
         np.testing.assert_allclose(H[:, 0], 3.0 * (nrm @ to_sun), rtol=1e-12)
 
 
-@pytest.fixture(scope="module")
-def shadowed_plane():
+def shadowed_plane_scene() -> tuple[Surfaces, Lamp]:
     """A 4 m plane (rho 0.8) under a point lamp, with a 0.6 m square pure occluder between."""
     pv, pt = scenes.plane(size=4.0, n=4)
     occ_v, occ_t = scenes.quad([-0.3, -0.3, 1.0], [0.3, -0.3, 1.0], [0.3, 0.3, 1.0], [-0.3, 0.3, 1.0])
@@ -78,9 +77,13 @@ def shadowed_plane():
     t = np.vstack([pt, occ_t + len(pv)])
     obj = np.r_[np.zeros(len(pt), int), np.ones(len(occ_t), int)]
     s = Surfaces.from_arrays(v, t, object_index=obj, reflectance=[RHO] * 3, receiver=[True, False])
-    atlas = build_atlas(s, AtlasSettings(patch_count=400))
-    problem = prepare(s, atlas)
-    lamp = Lamp("POINT", position=(0.2, 0.1, 2.0), power=500.0)
+    return s, Lamp("POINT", position=(0.2, 0.1, 2.0), power=500.0)
+
+
+@pytest.fixture(scope="module")
+def shadowed_plane():
+    s, lamp = shadowed_plane_scene()
+    problem = prepare(s, build_atlas(s, AtlasSettings(patch_count=400)))
     return problem, lamp, solve(problem, (lamp,))
 
 

@@ -5,7 +5,7 @@ closed form)."""
 import numpy as np
 import pytest
 from test_contact import two_rooms
-from test_direct import RHO, _closed_form_direct
+from test_direct import RHO, _closed_form_direct, shadowed_plane_scene
 
 import scenes
 from ovrad_addon.atlas import build_atlas
@@ -125,15 +125,7 @@ def test_refining_at_a_shadow_edge_lowers_the_error_there(beta):
     the edge (measured: 400 patches 27 / 25 % (box / smooth); refined to about 2 200, 16 / 15 %;
     1 600 uniform patches, 21 / 11 %: smooth beta blends the large patches next to the refined
     ones into them)."""
-    from ovrad_addon.lights import Lamp
-
-    pv, pt = scenes.plane(size=4.0, n=4)
-    occ_v, occ_t = scenes.quad([-0.3, -0.3, 1.0], [0.3, -0.3, 1.0], [0.3, 0.3, 1.0], [-0.3, 0.3, 1.0])
-    v = np.vstack([pv - [2.0, 2.0, 0.0], occ_v])
-    t = np.vstack([pt, occ_t + len(pv)])
-    obj = np.r_[np.zeros(len(pt), int), np.ones(len(occ_t), int)]
-    s = Surfaces.from_arrays(v, t, object_index=obj, reflectance=[RHO] * 3, receiver=[True, False])
-    lamp = Lamp("POINT", position=(0.2, 0.1, 2.0), power=500.0)
+    s, lamp = shadowed_plane_scene()
     rng = np.random.default_rng(7)
     pts = np.column_stack([rng.uniform(-1.2, 1.2, 20000), rng.uniform(-1.2, 1.2, 20000), np.zeros(20000)])
     exact, margin = _closed_form_direct(pts, np.array(lamp.position), lamp.power)
