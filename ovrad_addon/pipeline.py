@@ -355,6 +355,7 @@ def solve(
     atlas = problem.atlas
     E = patch_emission(problem, emission_scale)
     C_solve = laplacian_smoothed(problem.C, settings.smoothing) if settings.rule == "exact" else problem.C
+    lu = factorize(C_solve) if settings.rule == "exact" else None
     if state is None:
         T = problem.transport
         rp = T.points
@@ -376,7 +377,7 @@ def solve(
                 "no light: nothing in the scene emits (add a lamp, an emissive material or world light)"
             )
         if settings.rule == "exact":
-            dB = factorize(C_solve).solve(received)
+            dB = lu.solve(received)
         else:
             inv = inverse_areas(atlas.support_area)[:, None]
             dB = (problem.C.T @ (received * inv)) * inv
@@ -396,6 +397,7 @@ def solve(
         progress=progress,
         state=state,
         reference_power=float(np.sum(atlas.effective_area[:, None] * np.abs(state.radiosity))),
+        lu=lu,
     )
 
 

@@ -59,7 +59,13 @@ class Transport:
 
     def received(self, cols: np.ndarray, unshot: np.ndarray) -> np.ndarray:
         """EC (n, 3): light landing in every test region when patches `cols` shoot unshot (len, 3)."""
-        return self.rho * (self.geometric[:, cols] @ unshot)
+        G = self.geometric
+        if len(cols) * 8 < G.shape[1]:
+            return self.rho * (G[:, cols] @ unshot)
+        # many shooters: a product with all of G costs less than copying their columns out
+        full = np.zeros((G.shape[1], unshot.shape[1]))
+        full[cols] = unshot
+        return self.rho * (G @ full)
 
     def apply(self, B: np.ndarray) -> np.ndarray:
         """R B (n, 3)."""

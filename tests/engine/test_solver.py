@@ -10,7 +10,7 @@ from ovrad_addon.atlas import build_atlas, index_surfaces
 from ovrad_addon.errors import OvradError
 from ovrad_addon.overlap import alpha_at, overlap_matrix, patch_average, reconstruct
 from ovrad_addon.settings import AtlasSettings
-from ovrad_addon.solver import solve_direct, solve_progressive
+from ovrad_addon.solver import shooters, solve_direct, solve_progressive
 from ovrad_addon.surfaces import Surfaces
 from ovrad_addon.transport import gather_transport
 
@@ -95,6 +95,28 @@ def test_progressive_shooting_converges_to_the_direct_solution_of_equation_9():
     state = solve_progressive(C, T, E, tolerance=1e-6, batch=16)
     assert state.converged
     np.testing.assert_allclose(state.radiosity, direct, rtol=1e-4, atol=1e-6 * np.abs(direct).max())
+
+
+@pytest.mark.parametrize("share, batch", [(1e-9, 1), (0.5, 1), (0.99, 64), (1.0, 1)])
+def test_shooting_any_share_per_step_reaches_the_direct_solution(share, batch):
+    # one patch per step (the classical order) up to every patch with unshot power (Jacobi):
+    # the same fixed point, equation (9)
+    s, (atlas, index, C, T, E) = lit_cube(1.6, "smooth")
+    direct = solve_direct(C, T, E)
+    state = solve_progressive(C, T, E, tolerance=1e-7, batch=batch, share=share)
+    assert state.converged
+    np.testing.assert_allclose(state.radiosity, direct, rtol=1e-4, atol=1e-6 * np.abs(direct).max())
+
+
+def test_shooters_are_the_fewest_largest_holding_the_share():
+    power = np.array([0.0, 5.0, 1.0, 3.0, 0.5, 0.5])  # total 10
+    assert list(shooters(power, 0.5, 1)) == [1]  # 5 of 10
+    assert list(shooters(power, 0.8, 1)) == [1, 3]  # 8 of 10
+    assert list(shooters(power, 0.85, 1)) == [1, 3, 2]
+    assert list(shooters(power, 0.5, 3)) == [1, 3, 2]  # at least `batch`
+    assert sorted(shooters(power, 1.0, 1)) == [1, 2, 3, 4, 5]  # never the one with no power
+    assert list(shooters(power, 0.5, 100)) == [1, 3, 2, 4, 5]
+    assert len(shooters(np.zeros(4), 0.5, 1)) == 0
 
 
 def test_paper_rule_reaches_its_own_fixed_point_not_equation_9():
