@@ -95,7 +95,8 @@ class SolveJob:
         """What a finished solve did (empty before it has a state): rays, transport_rays,
         form_factors_reused, overlaps_kept (patches whose C was kept with the atlas, not integrated),
         prepare_seconds (per stage of prepare(): index, overlap, transport; empty when the form
-        factors were reused), shots, unshot_fraction, converged."""
+        factors were reused), prepare_peak_mb (peak resident MiB per stage of prepare(), the same
+        way), shots, unshot_fraction, converged."""
         st = self.state
         if st is None:
             return {}
@@ -105,6 +106,7 @@ class SolveJob:
             "form_factors_reused": bool(self.reused),
             "overlaps_kept": int(self.problem.kept),
             "prepare_seconds": {} if self.reused else dict(self.problem.seconds),
+            "prepare_peak_mb": {} if self.reused else dict(self.problem.memory),
             "shots": int(st.shots),
             "unshot_fraction": unshot_fraction(st),
             "converged": bool(st.converged),

@@ -42,9 +42,17 @@ def resident_mb() -> float | None:
     return _linux_field("VmRSS")
 
 
+# Stages open now (nested ones too): resetting the kernel's peak for an inner stage first hands
+# the peak so far to every open stage, so an outer stage's peak stays its own.
+_open: list[_Stage] = []
+
+
 def reset_peak() -> bool:
     """Start a new peak at the current resident size; False where the system cannot (then
-    peak_mb() keeps counting from the process start)."""
+    peak_mb() keeps counting from the process start). Open stages keep the peak reached so far."""
+    before = peak_mb()
+    for stage in _open:
+        stage.fold(before)
     try:
         with open(_CLEAR, "w", encoding="ascii") as fh:
             fh.write("5")
@@ -55,7 +63,7 @@ def reset_peak() -> bool:
 
 class StagePeaks:
     """Peak memory per named stage: `with peaks.stage("solve"): ...` records that stage's peak
-    (MiB, rounded); `.mb` maps stage names to peaks."""
+    (MiB, rounded; stages may nest); `.mb` maps stage names to peaks."""
 
     def __init__(self):
         self.mb: dict[str, float] = {}
@@ -66,14 +74,21 @@ class StagePeaks:
 
 class _Stage:
     def __init__(self, owner: StagePeaks, name: str):
-        self.owner, self.name = owner, name
+        self.owner, self.name, self.peak = owner, name, None
+
+    def fold(self, value: float | None) -> None:
+        if value is not None:
+            self.peak = value if self.peak is None else max(self.peak, value)
 
     def __enter__(self):
         reset_peak()
+        self.peak = None
+        _open.append(self)
         return self
 
     def __exit__(self, *exc):
-        peak = peak_mb()
-        if peak is not None:
-            self.owner.mb[self.name] = round(peak, 1)
+        _open.remove(self)
+        self.fold(peak_mb())
+        if self.peak is not None:
+            self.owner.mb[self.name] = round(self.peak, 1)
         return False

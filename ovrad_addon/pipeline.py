@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.sparse import csc_matrix, csr_matrix, diags, spmatrix
@@ -20,6 +20,7 @@ from .errors import OvradError
 from .gather import MAX_RAYS, NEAR_LIGHT_SAMPLES, NEAR_SKY_SAMPLES, NearField, gather_unique, sampled_emission
 from .kept_overlaps import KeptOverlaps, usable
 from .lights import Lamp
+from .memory import StagePeaks
 from .overlap import alpha_at, overlap_matrix, patch_average, patch_quadrature, reconstruct
 from .progress import StageCallback, report_stage
 from .settings import AtlasSettings, ObjectSettings
@@ -31,6 +32,10 @@ from .transport import Transport, gather_transport
 
 QUADRATURE = AtlasSettings().quadrature  # the rule of C at a solve: Generate's (so C may be kept)
 GATHER_Q = 4  # polar rule of the receiver points (transport, direct light, patch emission)
+# Transport rays cast at most (SolveSettings.max_rays): 32 rays per receiver point reach it at
+# about 16 000 box patches; larger atlases cast fewer per point (see gather_transport).
+MAX_TRANSPORT_RAYS = 1 << 23
+MIN_LIGHT_SAMPLES, MIN_SKY_SAMPLES = 4, 64  # per receiver point, under the ray budget (within_budget)
 NEE_AREA_FRACTION = 0.1  # emitters covering less of the scene are shot with shadow rays
 
 
@@ -38,11 +43,13 @@ NEE_AREA_FRACTION = 0.1  # emitters covering less of the scene are shot with sha
 class SolveSettings:
     """tolerance: stop when unshot power < tolerance x emitted power; rule: "exact" (eq. 9) or
     "paper" (the published update); rays_per_point: hemisphere rays per receiver point;
-    batch: shooters per step; light_samples: emitter samples per receiver point (direct light);
+    batch: shooters per step at least (solver.solve_progressive); light_samples: emitter samples
+    per receiver point (direct light);
     bake_samples: emitter samples per bake point (direct light at vertices and texels);
     smoothing: weight of the overlap-graph Laplacian added to C when solving (see laplacian_smoothed()),
     0 solves equation (9) exactly; min_rays: transport rays cast at least, in all (a small atlas
-    gets more receiver points and rays per point, see gather_transport); gather_rays: final-gather
+    gets more receiver points and rays per point, see gather_transport); max_rays: at most (a large
+    atlas casts fewer per receiver point, MAX_TRANSPORT_RAYS); gather_rays: final-gather
     rays per bake point for its indirect light (gather.py), 0 reconstructs it from the patches
     (Cornell box, 2 086 patches, every vertex: 5.6 % relative RMS with 0, 3.5 / 2.4 / 1.9 % with
     64 / 128 / 256 rays for +2.9 / 3.9 / 6.1 s over 8 482 vertices; benchmarks/gather_bench.py);
@@ -63,6 +70,7 @@ class SolveSettings:
     smoothing: float = 0.1
     bake_samples: int = 64
     min_rays: int = 1 << 20
+    max_rays: int = MAX_TRANSPORT_RAYS
     gather_rays: int = 256
     # Gather hits closer than a patch radius get their direct light computed where they land
     # (gather.NearField): Cornell box, 2 000 box patches, 256 rays, every vertex: 1.86 -> 1.65 %
@@ -80,6 +88,8 @@ class SolveSettings:
             raise OvradError(f"smoothing must be in [0, 10], got {self.smoothing}")
         if not (1 <= self.rays_per_point <= 4096) or not (1 <= self.light_samples <= 1024):
             raise OvradError("rays_per_point must be in [1, 4096] and light_samples in [1, 1024]")
+        if not (0 <= self.max_rays <= 1 << 30):
+            raise OvradError(f"max_rays must be in [0, {1 << 30}], got {self.max_rays}")
         if not (0 <= self.min_rays <= 1 << 28):
             raise OvradError(f"min_rays must be in [0, {1 << 28}], got {self.min_rays}")
         if not (1 <= self.bake_samples <= 4096):
@@ -103,6 +113,19 @@ class Problem:
     rays: int
     seconds: dict
     kept: int = 0  # patches whose rows and columns of C were kept with the atlas (not integrated)
+    memory: dict = field(default_factory=dict)  # peak resident MiB per stage (memory.py)
+    # per-patch values every bake chunk needs (patch_emission, own_emission): integrated over every
+    # patch once, not once per chunk (100 k patches: the vertex bake went from 136 s to ...). Not
+    # an init field: dataclasses.replace (other surfaces, another atlas) starts with an empty one.
+    cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+
+    def cached(self, key, compute):
+        """compute(), once per key for this problem; the array comes back read-only."""
+        if key not in self.cache:
+            value = compute()
+            value.setflags(write=False)
+            self.cache[key] = value
+        return self.cache[key]
 
 
 def _stored_sheets(atlas: Atlas, index: SurfaceIndex) -> np.ndarray:
@@ -218,28 +241,33 @@ def prepare(
     if len(atlas) == 0:
         raise OvradError("the atlas has no patches: generate an atlas first")
     seconds = {}
+    peaks = StagePeaks()
     t0 = time.perf_counter()
     report_stage(progress, 0.0, "indexing surfaces")
-    index = both_sides_index(surfaces, backend, atlas)
-    atlas = attach_sheets(atlas, index)
+    with peaks.stage("index"):
+        index = both_sides_index(surfaces, backend, atlas)
+        atlas = attach_sheets(atlas, index)
     seconds["index"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    C, support, known = overlaps(surfaces, atlas, index, quadrature, kept, progress)
-    if drop_unsupported and np.any(support <= 0):
-        keep = np.flatnonzero(support > 0)
-        atlas, C, support = atlas.select(keep), C.tocsr()[keep][:, keep], support[keep]
-    atlas = replace(atlas, support_area=support, effective_area=C.diagonal().copy())
+    with peaks.stage("overlap"):
+        C, support, known = overlaps(surfaces, atlas, index, quadrature, kept, progress)
+        if drop_unsupported and np.any(support <= 0):
+            keep = np.flatnonzero(support > 0)
+            atlas, C, support = atlas.select(keep), C.tocsr()[keep][:, keep], support[keep]
+        atlas = replace(atlas, support_area=support, effective_area=C.diagonal().copy())
     seconds["overlap"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    T = gather_transport(
-        atlas,
-        index,
-        settings.rays_per_point,
-        progress=lambda f: report_stage(progress, 0.4 + 0.6 * f, "casting transport rays"),
-        min_rays=settings.min_rays,
-    )
+    with peaks.stage("transport"):
+        T = gather_transport(
+            atlas,
+            index,
+            settings.rays_per_point,
+            progress=lambda f: report_stage(progress, 0.4 + 0.6 * f, "casting transport rays"),
+            min_rays=settings.min_rays,
+            max_rays=settings.max_rays,
+        )
     seconds["transport"] = time.perf_counter() - t0
-    return Problem(surfaces, atlas, index, C, T, T.rays, seconds, int(known.sum()))
+    return Problem(surfaces, atlas, index, C, T, T.rays, seconds, int(known.sum()), peaks.mb)
 
 
 def overlaps(
@@ -289,12 +317,23 @@ def laplacian_smoothed(C: spmatrix, weight: float) -> spmatrix:
 
 
 def patch_emission(problem: Problem, emission_scale: float = 1.0) -> np.ndarray:
-    """Exitance E (n, 3) of each patch: pi x emitted radiance averaged over its support."""
-    return (
-        np.pi
-        * emission_scale
-        * patch_average(problem.atlas, problem.index, problem.surfaces.emission, GATHER_Q)
+    """Exitance E (n, 3) of each patch: pi x emitted radiance averaged over its support (read-only)."""
+    return problem.cached(
+        ("emission", float(emission_scale)),
+        lambda: (
+            np.pi
+            * emission_scale
+            * patch_average(problem.atlas, problem.index, problem.surfaces.emission, GATHER_Q)
+        ),
     )
+
+
+def own_emission(problem: Problem, emitters, emission_scale: float = 1.0) -> np.ndarray:
+    """gather.sampled_emission of the problem's patches (read-only): their exitance from the
+    emitting triangles that bake points light themselves with."""
+    flags = None if emitters is None else np.asarray(emitters, bool)
+    key = ("own", float(emission_scale), None if flags is None else hash(np.packbits(flags).tobytes()))
+    return problem.cached(key, lambda: sampled_emission(problem.atlas, problem.index, flags, emission_scale))
 
 
 def sampled_emitters(problem: Problem, emission_scale: float = 1.0) -> np.ndarray:
@@ -335,6 +374,15 @@ def direct_light(
     )
 
 
+def within_budget(samples: int, points: int, budget: int, floor: int) -> int:
+    """Samples per receiver point for the first shot: `samples`, or fewer (never below floor)
+    when points x samples would pass the transport's ray budget (0: none). A large atlas has
+    small patches with many receiver points: each patch still gets about samples x its points."""
+    if budget <= 0 or points * samples <= budget:
+        return samples
+    return max(min(floor, samples), budget // max(points, 1))
+
+
 def solve(
     problem: Problem,
     lamps: tuple[Lamp, ...] = (),
@@ -359,10 +407,11 @@ def solve(
     if state is None:
         T = problem.transport
         rp = T.points
+        points = len(rp.owner)
         light = replace(
             direct_light(problem, lamps, settings, emission_scale, sky),
-            samples=settings.light_samples,
-            sky_samples=settings.sky_samples,
+            samples=within_budget(settings.light_samples, points, settings.max_rays, MIN_LIGHT_SAMPLES),
+            sky_samples=within_budget(settings.sky_samples, points, settings.max_rays, MIN_SKY_SAMPLES),
         )
         small = bool(np.any(light.emitters))
         H, direct_rays = direct_irradiance(problem.surfaces, problem.index.rays, light, rp.points, rp.normals)
@@ -444,8 +493,8 @@ def _at_points(
     # --- final gather (gather.py): the indirect light comes from rays cast at the points, the
     # patches give only the points' own emission; a point needs no patch, only a lit side (sheet)
     if light.gather_rays > 0:
-        atlas, index = problem.atlas, problem.index
-        own = sampled_emission(atlas, index, light.emitters, light.emission_scale)
+        index = problem.index
+        own = own_emission(problem, light.emitters, light.emission_scale)
         coeffs = patch_emission(problem, light.emission_scale)
         if indirect is not None:
             H = H + np.asarray(indirect, np.float64).reshape(-1, 3)

@@ -81,6 +81,7 @@ class Transport:
 
 POINT_RAYS = 256  # rays per receiver point a min_rays budget aims at before it adds points
 MAX_SCALE = 16
+MIN_POINT_RAYS = 4  # under a max_rays budget, receiver points are halved before rays go below this
 MAX_POINT_RAYS = 1 << 16  # one chunk's arrays stay within a few MB per point
 
 
@@ -91,6 +92,13 @@ def receiver_scale(points: int, min_rays: int) -> int:
     if points <= 0 or points >= want:
         return 1
     return int(min(MAX_SCALE, np.ceil(np.sqrt(want / points))))
+
+
+def capped(points: int, rays_per_point: int, max_rays: int) -> int:
+    """Rays per receiver point within a budget of max_rays in all (0: none), at least 1."""
+    if max_rays <= 0 or points * rays_per_point <= max_rays:
+        return rays_per_point
+    return max(1, max_rays // max(points, 1))
 
 
 def rays_for(points: int, rays_per_point: int, min_rays: int) -> int:
@@ -132,12 +140,17 @@ def gather_transport(
     seed: int = 0,
     workers: int = WORKERS,
     min_rays: int = 0,
+    max_rays: int = 0,
 ) -> Transport:
     """Build G and rho by hemisphere gathering from every patch's receiver points.
 
     min_rays: a floor on the rays cast in all. An atlas too small to reach it with q and
     rays_per_point gets a finer receiver rule (more angles and rings, up to 16x each) and more
     rays per point, so a small scene spends the budget on accuracy (receiver_scale, rays_for).
+    max_rays: a ceiling (0: none; never below min_rays). A large atlas gets a coarser receiver
+    rule (q halved, down to 2, while fewer than MIN_POINT_RAYS rays per point would be left) and
+    fewer rays per point, down to one, so the time and G's entries (at most a few per ray) stop
+    growing with the patch count once it is reached: G's memory is bounded by the budget.
 
     Receiver points go in chunks of about chunk_rays rays, each chunk cast and resolved (alpha
     at the hits, summed per (h, k)) on one of `workers` threads: embree and most numpy work
@@ -146,9 +159,13 @@ def gather_transport(
     thread timing.
     """
     n = len(atlas)
-    scale = receiver_scale(n * 4 * q * (1 if atlas.beta == "box" else 2), min_rays)
+    per_patch = 4 * (1 if atlas.beta == "box" else 2)  # receiver points per patch and unit of q
+    while max_rays and q > 2 and n * per_patch * q * MIN_POINT_RAYS > max(max_rays, min_rays):
+        q //= 2  # a very large atlas: fewer receiver points per patch before fewer rays per point
+    scale = receiver_scale(n * per_patch * q, min_rays)
     pts = receiver_points(atlas, index, q * scale, scale)
     rays_per_point = rays_for(len(pts.owner), rays_per_point, min_rays)
+    rays_per_point = capped(len(pts.owner), rays_per_point, max(max_rays, min_rays) if max_rays else 0)
     _ = atlas.grid  # build the lookup once, before the threads need it
     offset = 1e-6 * index.surfaces.extent
     m = len(pts.owner)
@@ -167,7 +184,8 @@ def gather_transport(
         ray_w = np.repeat(pts.weight[sl] / rays_per_point, rays_per_point)[hits.ray]
         # summed per (h, k) within the chunk: memory follows G, not rays
         part = coo_matrix((a.data * ray_w[a.row], (owner[a.row], a.col)), shape=(n, n)).tocsr().tocoo()
-        return part.row, part.col, part.data, sl.stop
+        # int32 indices: G's assembly holds every chunk's entries at once
+        return part.row.astype(np.int32), part.col.astype(np.int32), part.data, sl.stop
 
     rows, cols, vals = [], [], []
     for r, c, v, done in threaded(chunk, len(starts), workers):

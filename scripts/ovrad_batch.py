@@ -426,6 +426,7 @@ def make_report(args, module, props, paths, receivers, atlases, stats, images, s
     report |= {k: stats.get(k) for k in keys} | dict(solver=props.solve_rule, beta=props.beta)
     # the solve's own stages (index, overlap: C, transport) and how many patches' C it found kept
     report["solve_seconds"] = {k: round(v, 3) for k, v in (stats.get("prepare_seconds") or {}).items()}
+    report["solve_peak_memory_mb"] = stats.get("prepare_peak_mb") or {}
     report["overlaps_kept"] = stats.get("overlaps_kept")
     report |= dict(overlap=round(props.overlap, 6), tolerance=float(f"{props.solve_tolerance:.6g}"))
     report |= dict(quality=props.quality.lower(), gather_rays=props.gather_rays, min_rays=props.min_rays)
@@ -435,15 +436,21 @@ def make_report(args, module, props, paths, receivers, atlases, stats, images, s
 
 
 class Stages:
-    """Seconds per named stage of a run."""
+    """Seconds per named stage of a run, and its peak resident memory once `peaks` is set (the
+    engine's memory.StagePeaks, known once ovrad is enabled)."""
 
     def __init__(self):
         self.start = time.perf_counter()
         self.seconds: dict[str, float] = {}
+        self.peaks = None
 
     def run(self, name: str, fn, *args):
         t = time.perf_counter()
-        result = fn(*args)
+        if self.peaks is None:
+            result = fn(*args)
+        else:
+            with self.peaks.stage(name):
+                result = fn(*args)
         self.seconds[name] = time.perf_counter() - t
         return result
 
@@ -459,6 +466,7 @@ def run(args) -> dict:
     if module is None:
         raise BatchError("ovrad's operators are registered but its module was not found")
     engine = module.ovrad_addon
+    stages.peaks = importlib.import_module(engine.__name__ + ".memory").StagePeaks()
     try:
         scene = bpy.context.scene
         if args.picture and scene.camera is None:
@@ -483,6 +491,7 @@ def run(args) -> dict:
     except engine.errors.OvradError as e:  # a user error the engine found: one line, like ours
         raise BatchError(str(e).splitlines()[0]) from None
     report["seconds"] = stages.rounded()
+    report["peak_memory_mb"] = dict(stages.peaks.mb)  # per stage: MiB resident at most
     if args.report:
         with open(args.report, "w", encoding="utf-8") as fh:
             json.dump(report, fh, indent=2)

@@ -70,6 +70,11 @@ def test_vertex_bake_saves_attributes_report_and_picture(ovrad, run_blender, tmp
     # the solve's stages: C kept by Generate for every patch, not integrated again
     assert set(r["solve_seconds"]) == {"index", "overlap", "transport"}
     assert r["overlaps_kept"] == r["patches"] and r["solve_seconds"]["overlap"] < 0.1
+    # peak resident memory per stage, MiB: Blender itself is resident during each of them
+    assert set(r["peak_memory_mb"]) == set(r["seconds"]) - {"total"}
+    assert set(r["solve_peak_memory_mb"]) == {"index", "overlap", "transport"}
+    assert all(50 < v < 24_000 for v in [*r["peak_memory_mb"].values(), *r["solve_peak_memory_mb"].values()])
+    assert r["peak_memory_mb"]["solve"] >= max(r["solve_peak_memory_mb"].values())
     assert r["output"] == str(out) and r["input"] == str(CORNELL)
     assert picture.stat().st_size > 1000
     attrs, _ = inspect(run_blender, out)

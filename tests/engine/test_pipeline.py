@@ -12,7 +12,15 @@ from ovrad_addon.atlas import build_atlas
 from ovrad_addon.direct import direct_irradiance
 from ovrad_addon.errors import OvradError
 from ovrad_addon.lights import Lamp, lamp_irradiance
-from ovrad_addon.pipeline import SolveSettings, direct_light, irradiance_at, prepare, radiance_at, solve
+from ovrad_addon.pipeline import (
+    SolveSettings,
+    direct_light,
+    irradiance_at,
+    patch_emission,
+    prepare,
+    radiance_at,
+    solve,
+)
 from ovrad_addon.settings import AtlasSettings
 from ovrad_addon.sky import Sky
 from ovrad_addon.surfaces import Surfaces
@@ -127,6 +135,20 @@ def test_furnace_through_the_pipeline(backend):
     pts, tri = scenes.sample_surface(s, 5000, seed=4)
     L = radiance_at(problem, state.radiosity, pts, tri, 1)
     np.testing.assert_allclose(L, 2.0 / (1 - 0.9), rtol=5e-3)
+
+
+def test_patch_emission_is_computed_once_and_follows_new_surfaces():
+    base = scenes.cube(inward=True)
+    s = Surfaces.from_arrays(base.vertices, base.triangles, reflectance=[0.5] * 3, emission=[2.0] * 3)
+    problem = prepare(s, build_atlas(s, AtlasSettings(patch_count=100)))
+    E = patch_emission(problem)
+    assert patch_emission(problem) is E and not E.flags.writeable  # kept, and not to be changed
+    np.testing.assert_allclose(E, 2.0 * np.pi, rtol=1e-9)  # uniform radiance 2: exitance 2 pi
+    np.testing.assert_allclose(patch_emission(problem, 0.5), np.pi, rtol=1e-9)
+    # the same problem with brighter surfaces (an operator reuses form factors so): not the old values
+    brighter = Surfaces.from_arrays(base.vertices, base.triangles, reflectance=[0.5] * 3, emission=[3.0] * 3)
+    np.testing.assert_allclose(patch_emission(replace(problem, surfaces=brighter)), 3.0 * np.pi, rtol=1e-9)
+    assert patch_emission(problem) is E
 
 
 def test_cornell_box_radiance_is_independent_of_scale():

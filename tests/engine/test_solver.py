@@ -9,10 +9,11 @@ import scenes
 from ovrad_addon.atlas import build_atlas, index_surfaces
 from ovrad_addon.errors import OvradError
 from ovrad_addon.overlap import alpha_at, overlap_matrix, patch_average, reconstruct
+from ovrad_addon.pipeline import within_budget
 from ovrad_addon.settings import AtlasSettings
 from ovrad_addon.solver import shooters, solve_direct, solve_progressive
 from ovrad_addon.surfaces import Surfaces
-from ovrad_addon.transport import gather_transport
+from ovrad_addon.transport import capped, gather_transport
 
 
 def prepare(surfaces, **settings):
@@ -180,3 +181,30 @@ def test_paper_rule_stays_finite_when_a_patch_has_no_support():
     state = solve_progressive(C, T, E, tolerance=1e-6, rule="paper", support_area=A)
     assert state.converged and np.all(np.isfinite(state.radiosity))
     assert np.all(state.radiosity[0] == E[0])  # it got no light: 1/A_0 is taken as 0
+
+
+@pytest.mark.parametrize("max_rays", [20_000, 8_000])
+def test_a_ray_budget_keeps_rows_closed_and_the_furnace_exact(max_rays):
+    # 400 smooth patches want 400 x 32 points x 32 rays = 410 k rays: the budget is 1/20 and 1/50 of it
+    # (8 000: a receiver rule of half the points, and one ray per point). Rows close whatever the
+    # budget: every ray of a closed room lands on covered surface, and the alpha there sum to 1.
+    s = uniform(scenes.cube(inward=True), 0.8)
+    st = AtlasSettings(patch_count=400)
+    atlas = build_atlas(s, st)
+    index = index_surfaces(s, st)
+    C, support = overlap_matrix(atlas, index, st.quadrature)
+    T = gather_transport(replace(atlas, support_area=support), index, max_rays=max_rays)
+    assert T.rays <= max_rays and T.rays >= max_rays // 4
+    np.testing.assert_allclose(np.asarray(T.geometric.sum(axis=1)).ravel(), support, rtol=1e-9)
+    E = np.pi * patch_average(atlas, index, s.emission)
+    state = solve_progressive(C, T, E, tolerance=1e-6)
+    L = radiance_at_samples(atlas, index, s, state.radiosity, 5000)
+    np.testing.assert_allclose(L, 1.0 / (1.0 - 0.8), rtol=2e-3)
+
+
+def test_budget_helpers():
+    assert capped(1000, 32, 0) == 32 and capped(1000, 32, 64_000) == 32
+    assert capped(1000, 32, 10_000) == 10 and capped(1000, 32, 10) == 1  # never below one ray
+    assert within_budget(16, 1000, 0, 4) == 16 and within_budget(16, 1000, 16_000, 4) == 16
+    assert within_budget(16, 1000, 8_000, 4) == 8 and within_budget(16, 1000, 1_000, 4) == 4
+    assert within_budget(2, 1000, 1_000, 4) == 2  # the floor never raises what was asked

@@ -1,0 +1,147 @@
+"""Scale: the batch bake at growing patch counts, timed, its memory measured and scored at every vertex.
+
+Run (about 10 minutes for the defaults on 2 cores):
+    scripts/blender -b --python-exit-code 1 -P benchmarks/scale_bench.py -- \
+        [--scene cornell lamps_doorway production] [--counts 2000 25000 100000] [--name scale]
+
+Each bake is the batch command's own code (scripts/ovrad_batch.py run in this process, `--input
+scene.blend --output out.blend --patch-count N`, the file's other settings: medium quality), so
+the figures are what a user's `blender -b -P ovrad_batch.py` gets. Per bake: seconds of generate,
+solve (with its C, transport and shooting) and vertex bake; the peak resident memory of each stage
+(the batch report's peak_memory_mb: the process's peak within the stage, Blender included); the
+relative RMS error at EVERY vertex against the scene's converged Cycles reference (cornell,
+lamps_doorway; speed_vs_error.py scores them the same way). `production` is the ~100 k-triangle
+production-like room of scripts/make_production_scene.py: it has no Cycles reference, so it is
+timed and measured only. Writes benchmarks/results/<name>.csv and <name>.png (log-log: time and
+peak memory against patches).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+sys.path.insert(0, str(HERE))
+import speed_vs_error  # noqa: E402  (benchmarks/ is not a package)
+
+RESULTS = HERE / "results"
+FIELDS = [
+    "scene",
+    "target_patches",
+    "patches",
+    "seconds",
+    "generate_s",
+    "solve_s",
+    "bake_s",
+    "overlap_s",
+    "transport_s",
+    "peak_mb",
+    "generate_mb",
+    "solve_mb",
+    "bake_mb",
+    "transport_mb",
+    "rays",
+    "error",
+]
+
+
+class Production:
+    """The production-like room (no reference): built once by its own script."""
+
+    name = "production"
+
+    def __init__(self, folder: Path):
+        self.blend = folder / "production.blend"
+        cmd = [str(ROOT / "scripts" / "blender"), "-b", "--python-exit-code", "1", "-P"]
+        cmd += [str(ROOT / "scripts" / "make_production_scene.py"), "--", "--output", str(self.blend)]
+        subprocess.run(cmd, check=True, capture_output=True)
+
+    def score(self, attribute: str):
+        return float("nan"), float("nan")
+
+
+def bake(sc, count: int, folder: Path, rows: list) -> None:
+    batch = speed_vs_error.batch_module()
+    out, report = folder / f"{sc.name}_{count}.blend", folder / f"{sc.name}_{count}.json"
+    args = ["--input", str(sc.blend), "--output", str(out), "--report", str(report)]
+    rep = batch.run(batch.parse([*args, "--patch-count", str(count)]))
+    s, mb, inner = rep["seconds"], rep["peak_memory_mb"], rep["solve_peak_memory_mb"]
+    seconds = s["generate"] + s["solve"] + s["bake"]
+    err, _ = sc.score(rep["attribute"])
+    rows.append(
+        dict(scene=sc.name, target_patches=count, patches=rep["patches"], seconds=round(seconds, 2))
+        | dict(generate_s=s["generate"], solve_s=s["solve"], bake_s=s["bake"])
+        | dict(
+            overlap_s=rep["solve_seconds"].get("overlap"), transport_s=rep["solve_seconds"].get("transport")
+        )
+        | dict(peak_mb=max(mb[k] for k in ("generate", "solve", "bake")), generate_mb=mb["generate"])
+        | dict(solve_mb=mb["solve"], bake_mb=mb["bake"], transport_mb=inner.get("transport"))
+        | dict(rays=rep["rays"], error=round(err, 5))
+    )
+    r = rows[-1]
+    print(
+        f"scale_bench: {sc.name:14s} {r['patches']:8d} patches {seconds:8.1f} s "
+        f"(generate {s['generate']:.1f}, solve {s['solve']:.1f}, bake {s['bake']:.1f}) "
+        f"peak {r['peak_mb']:.0f} MiB, error {err:.4f}",
+        flush=True,
+    )
+
+
+def plot(rows: list, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    for name in dict.fromkeys(r["scene"] for r in rows):
+        mine = [r for r in rows if r["scene"] == name]
+        n = [r["patches"] for r in mine]
+        axes[0].loglog(n, [r["seconds"] for r in mine], "o-", label=name)
+        axes[1].loglog(n, [r["peak_mb"] for r in mine], "o-", label=name)
+    axes[0].axhline(120, color="grey", ls=":", label="2 minutes")
+    axes[1].axhline(4096, color="grey", ls=":", label="4 GiB")
+    axes[0].set(xlabel="patches", ylabel="generate + solve + bake (s)", title="time")
+    axes[1].set(xlabel="patches", ylabel="peak resident memory (MiB)", title="memory (Blender included)")
+    for ax in axes:
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main(argv: list[str]) -> int:
+    p = argparse.ArgumentParser(prog="scale_bench.py", description=__doc__.split("\n")[0])
+    p.add_argument(
+        "--scene", nargs="+", choices=("cornell", "lamps_doorway", "production"), default=["cornell"]
+    )
+    p.add_argument("--counts", type=int, nargs="+", default=[2000, 25000, 100000])
+    p.add_argument("--name", default="scale", help="results file name without .csv")
+    a = p.parse_args(argv)
+    folder = Path(tempfile.mkdtemp(prefix="ovrad-scale-"))
+    RESULTS.mkdir(exist_ok=True)
+    out = RESULTS / f"{a.name}.csv"
+    rows: list[dict] = []
+    for name in a.scene:
+        sc = Production(folder) if name == "production" else speed_vs_error.Scene(name, folder)
+        for count in a.counts:
+            bake(sc, count, folder, rows)
+            with open(out, "w", newline="") as fh:  # after every bake: a partial run keeps its rows
+                w = csv.DictWriter(fh, FIELDS)
+                w.writeheader()
+                w.writerows(rows)
+            if name != "production":
+                sc.open()  # the scored file: the next bake opens its input afresh anyway
+    plot(rows, out.with_suffix(".png"))
+    print(f"scale_bench: wrote {out} and {out.with_suffix('.png')}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[sys.argv.index("--") + 1 :] if "--" in sys.argv else []))
