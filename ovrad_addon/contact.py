@@ -29,6 +29,7 @@ LIFT = 2e-3  # the segment's height over the sheet, relative to the patch radius
 LIFT_EXTENT = 2e-6  # ... and at least this much of the scene size (float32 rays)
 MAX_PIECES = 3  # a patch splits into at most this many parts at contact lines
 LEAST_PIECE = 0.05  # ... each holding at least this share of its area
+CHUNK = 8192  # patches whose rule points contacts() holds at once
 
 
 @dataclass(frozen=True)
@@ -103,8 +104,9 @@ def contacts(atlas, index) -> Contacts:
     lift = _lift(atlas, index)
     anchor = atlas.centers.copy() if atlas.anchor is None else np.asarray(atlas.anchor, np.float64).copy()
     cut = np.zeros(n, bool)
-    ids = planar_patches(atlas, index)
-    if len(ids):
+    every = planar_patches(atlas, index)
+    for start in range(0, len(every), CHUNK):  # a patch's anchor and cut are its own: in chunks
+        ids = every[start : start + CHUNK]
         owner, points, _, _ = _rule(atlas, index, ids)
         todo = ~np.all(np.isfinite(anchor[ids]), axis=1)
         near = _nearest(atlas, ids, owner, points, todo[owner])
@@ -142,38 +144,12 @@ def split_at_contacts(atlas, index, pieces: int = MAX_PIECES, least: float = LEA
     ids = planar_patches(atlas, index)
     other = np.setdiff1d(np.arange(n), ids)
     rows, anchors, tris = [other], [atlas.centers[other]], [np.full(len(other), -1, np.int64)]
-    if len(ids):
-        owner, points, weights, tri = _rule(atlas, index, ids)
-        lift = _lift(atlas, index)
-        part = np.full(len(owner), -1, np.int64)
-        heads = []
-        for k in range(pieces):
-            a = _nearest(atlas, ids, owner, points, part < 0)
-            if not np.any(a >= 0):
-                break
-            heads.append(a)
-            test = np.flatnonzero((part < 0) & (a[owner] >= 0))
-            g = ids[owner[test]]
-            seen = ~_blocked(index, atlas.normals[g], lift[g], points[a[owner[test]]], points[test])
-            part[test[seen]] = k
-            part[a[a >= 0]] = k
-        total = np.bincount(owner, weights=weights, minlength=len(ids))
-        share = np.array(
-            [
-                np.bincount(owner[part == k], weights=weights[part == k], minlength=len(ids))
-                for k in range(len(heads))
-            ]
-        ) / np.maximum(total, 1e-300)
-        best = np.argmax(share, axis=0)
-        for k, a in enumerate(heads):
-            take = (a >= 0) & ((share[k] >= least) | (best == k))
-            rows.append(ids[take])
-            anchors.append(points[a[take]])
-            tris.append(tri[a[take]])
-        none = total <= 0  # no rule point on the sheet: the patch stays as it is
-        rows.append(ids[none])
-        anchors.append(atlas.centers[ids[none]])
-        tris.append(np.full(int(none.sum()), -1, np.int64))
+    lift = _lift(atlas, index)
+    for start in range(0, len(ids), CHUNK):  # a patch's parts are its own: in chunks
+        for r, a, t in _parts(atlas, index, ids[start : start + CHUNK], lift, pieces, least):
+            rows.append(r)
+            anchors.append(a)
+            tris.append(t)
     row = np.concatenate(rows)
     order = np.argsort(row, kind="stable")
     out = atlas.select(row[order])
@@ -184,6 +160,38 @@ def split_at_contacts(atlas, index, pieces: int = MAX_PIECES, least: float = LEA
         has = tri >= 0
         stored[has] = index.surfaces.local_triangle[tri[has]]
     return replace(out, anchor=np.concatenate(anchors)[order], triangle=stored)
+
+
+def _parts(atlas, index, ids, lift, pieces: int, least: float):
+    """split_at_contacts for planar patches ids: (patches, anchors, triangles) per kept part, in
+    the order the atlas keeps them (first parts, second parts, ..., patches left whole)."""
+    out = []
+    owner, points, weights, tri = _rule(atlas, index, ids)
+    part = np.full(len(owner), -1, np.int64)
+    heads = []
+    for k in range(pieces):
+        a = _nearest(atlas, ids, owner, points, part < 0)
+        if not np.any(a >= 0):
+            break
+        heads.append(a)
+        test = np.flatnonzero((part < 0) & (a[owner] >= 0))
+        g = ids[owner[test]]
+        seen = ~_blocked(index, atlas.normals[g], lift[g], points[a[owner[test]]], points[test])
+        part[test[seen]] = k
+        part[a[a >= 0]] = k
+    total = np.bincount(owner, weights=weights, minlength=len(ids))
+    held = [
+        np.bincount(owner[part == k], weights=weights[part == k], minlength=len(ids))
+        for k in range(len(heads))
+    ]
+    share = np.reshape(held, (len(heads), len(ids))) / np.maximum(total, 1e-300)
+    best = np.argmax(share, axis=0) if len(heads) else np.zeros(len(ids), np.int64)
+    for k, a in enumerate(heads):
+        take = (a >= 0) & ((share[k] >= least) | (best == k))
+        out.append((ids[take], points[a[take]], tri[a[take]]))
+    none = total <= 0  # no rule point on the sheet: the patch stays as it is
+    out.append((ids[none], atlas.centers[ids[none]], np.full(int(none.sum()), -1, np.int64)))
+    return out
 
 
 def _blocked(index, normals: np.ndarray, lift: np.ndarray, start: np.ndarray, end: np.ndarray) -> np.ndarray:

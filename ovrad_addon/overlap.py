@@ -36,6 +36,9 @@ class Quadrature:
     cand: np.ndarray  # (m, M) bool: neighbour slots (of the nb given) that may contain the point
 
 
+QUADRATURE_CHUNK = 8192  # patches per patch_quadrature pass
+
+
 def _gauss(n_sub: int) -> tuple[np.ndarray, np.ndarray]:
     x, w = np.polynomial.legendre.leggauss(n_sub)
     return 0.5 * (x + 1.0), 0.5 * w
@@ -196,6 +199,15 @@ def patch_quadrature(
     """
     if nb is None:
         nb = np.zeros((len(ids), 0), np.int64)
+    if len(ids) > QUADRATURE_CHUNK:
+        # a patch's rule depends on itself and its neighbours only: in chunks, the temporaries of
+        # every patch's rays and rule points are never held at once (100 k patches: 2.8 GB at once)
+        parts = []
+        for s in range(0, len(ids), QUADRATURE_CHUNK):
+            sl = slice(s, s + QUADRATURE_CHUNK)
+            part = patch_quadrature(atlas, index, ids[sl], q, nb[sl], rings, visibility)
+            parts.append(replace(part, owner=part.owner + s))
+        return Quadrature(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(Quadrature)))
     ball = atlas.shapes[ids] == SHAPE_BALL
     if ball.any():
         return _with_balls(atlas, index, ids, q, nb, rings, ball, visibility)

@@ -108,3 +108,21 @@ def test_a_vertex_on_a_contact_line_is_split_between_its_faces():
     normals = np.tile([0.0, 0.0, 1.0], (len(fans), 1))
     split = split_corners(index, vertex, corners, inside, normals)
     np.testing.assert_array_equal(split, vertex == 0)
+
+
+def test_chunked_work_gives_the_same_atlas_as_one_pass(monkeypatch):
+    # contacts, their splitting and every patch rule go in chunks of patches (memory); a patch's
+    # result is its own, so chunks of 97 patches must give the atlas and C one pass gives, bit for bit
+    from ovrad_addon import contact, overlap
+
+    s = scenes.cornell()  # two blocks standing on the floor: contact lines
+
+    def atlas_of(chunk):
+        monkeypatch.setattr(contact, "CHUNK", chunk)
+        monkeypatch.setattr(overlap, "QUADRATURE_CHUNK", chunk)
+        return build_atlas(s, AtlasSettings(patch_count=1500))
+
+    one, chunked = atlas_of(1 << 30), atlas_of(97)
+    assert len(one) == len(chunked) > 1000
+    for name in ("centers", "anchor", "triangle", "support_area", "effective_area", "overlap_count"):
+        np.testing.assert_array_equal(getattr(one, name), getattr(chunked, name), err_msg=name)
