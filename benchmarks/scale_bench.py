@@ -4,9 +4,10 @@ Run (about 10 minutes for the defaults on 2 cores):
     scripts/blender -b --python-exit-code 1 -P benchmarks/scale_bench.py -- \
         [--scene cornell lamps_doorway production] [--counts 2000 25000 100000] [--name scale]
 
-Each bake is the batch command's own code (scripts/ovrad_batch.py run in this process, `--input
-scene.blend --output out.blend --patch-count N`, the file's other settings: medium quality), so
-the figures are what a user's `blender -b -P ovrad_batch.py` gets. Per bake: seconds of generate,
+Each bake runs in a Blender process of its own (so its memory is its own, not what earlier bakes
+left behind) through the batch command's own code (scripts/ovrad_batch.py, `--input scene.blend
+--output out.blend --patch-count N`, the file's other settings: medium quality), so the figures
+are what a user's `blender -b -P ovrad_batch.py` gets. Per bake: seconds of generate,
 solve (with its C, transport and shooting) and vertex bake; the peak resident memory of each stage
 (the batch report's peak_memory_mb: the process's peak within the stage, Blender included); the
 relative RMS error at EVERY vertex against the scene's converged Cycles reference (cornell,
@@ -20,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import json
 import subprocess
 import sys
 import tempfile
@@ -66,7 +68,7 @@ class Production:
         return float("nan"), float("nan")
 
 
-def bake(sc, count: int, folder: Path, rows: list) -> None:
+def bake(sc, count: int, folder: Path) -> dict:
     batch = speed_vs_error.batch_module()
     out, report = folder / f"{sc.name}_{count}.blend", folder / f"{sc.name}_{count}.json"
     args = ["--input", str(sc.blend), "--output", str(out), "--report", str(report)]
@@ -74,23 +76,40 @@ def bake(sc, count: int, folder: Path, rows: list) -> None:
     s, mb, inner = rep["seconds"], rep["peak_memory_mb"], rep["solve_peak_memory_mb"]
     seconds = s["generate"] + s["solve"] + s["bake"]
     err, _ = sc.score(rep["attribute"])
-    rows.append(
+    return (
         dict(scene=sc.name, target_patches=count, patches=rep["patches"], seconds=round(seconds, 2))
         | dict(generate_s=s["generate"], solve_s=s["solve"], bake_s=s["bake"])
-        | dict(
-            overlap_s=rep["solve_seconds"].get("overlap"), transport_s=rep["solve_seconds"].get("transport")
-        )
+        | dict(overlap_s=rep["solve_seconds"].get("overlap"))
+        | dict(transport_s=rep["solve_seconds"].get("transport"))
         | dict(peak_mb=max(mb[k] for k in ("generate", "solve", "bake")), generate_mb=mb["generate"])
         | dict(solve_mb=mb["solve"], bake_mb=mb["bake"], transport_mb=inner.get("transport"))
         | dict(rays=rep["rays"], error=round(err, 5))
     )
-    r = rows[-1]
+
+
+def one(scene: str, count: int) -> None:
+    """One bake in this process; its row as one JSON line."""
+    folder = Path(tempfile.mkdtemp(prefix="ovrad-scale-"))
+    sc = Production(folder) if scene == "production" else speed_vs_error.Scene(scene, folder)
+    print("scale_bench row " + json.dumps(bake(sc, count, folder)), flush=True)
+
+
+def run_one(scene: str, count: int) -> dict:
+    cmd = [str(ROOT / "scripts" / "blender"), "-b", "--python-exit-code", "1", "-P", __file__, "--"]
+    proc = subprocess.run([*cmd, "--one", scene, str(count)], capture_output=True, text=True)
+    rows = [ln for ln in proc.stdout.splitlines() if ln.startswith("scale_bench row ")]
+    if proc.returncode != 0 or not rows:
+        raise SystemExit(
+            f"scale_bench: {scene} {count}: failed\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}"
+        )
+    r = json.loads(rows[-1].removeprefix("scale_bench row "))
     print(
-        f"scale_bench: {sc.name:14s} {r['patches']:8d} patches {seconds:8.1f} s "
-        f"(generate {s['generate']:.1f}, solve {s['solve']:.1f}, bake {s['bake']:.1f}) "
-        f"peak {r['peak_mb']:.0f} MiB, error {err:.4f}",
+        f"scale_bench: {scene:14s} {r['patches']:8d} patches {r['seconds']:8.1f} s "
+        f"(generate {r['generate_s']:.1f}, solve {r['solve_s']:.1f}, bake {r['bake_s']:.1f}) "
+        f"peak {r['peak_mb']:.0f} MiB, error {r['error']:.4f}",
         flush=True,
     )
+    return r
 
 
 def plot(rows: list, path: Path) -> None:
@@ -118,26 +137,25 @@ def plot(rows: list, path: Path) -> None:
 
 def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog="scale_bench.py", description=__doc__.split("\n")[0])
-    p.add_argument(
-        "--scene", nargs="+", choices=("cornell", "lamps_doorway", "production"), default=["cornell"]
-    )
+    scenes = ("cornell", "lamps_doorway", "production")
+    p.add_argument("--scene", nargs="+", choices=scenes, default=["cornell"])
     p.add_argument("--counts", type=int, nargs="+", default=[2000, 25000, 100000])
     p.add_argument("--name", default="scale", help="results file name without .csv")
+    p.add_argument("--one", nargs=2, help=argparse.SUPPRESS)
     a = p.parse_args(argv)
-    folder = Path(tempfile.mkdtemp(prefix="ovrad-scale-"))
+    if a.one:
+        one(a.one[0], int(a.one[1]))
+        return 0
     RESULTS.mkdir(exist_ok=True)
     out = RESULTS / f"{a.name}.csv"
     rows: list[dict] = []
     for name in a.scene:
-        sc = Production(folder) if name == "production" else speed_vs_error.Scene(name, folder)
         for count in a.counts:
-            bake(sc, count, folder, rows)
+            rows.append(run_one(name, count))
             with open(out, "w", newline="") as fh:  # after every bake: a partial run keeps its rows
                 w = csv.DictWriter(fh, FIELDS)
                 w.writeheader()
                 w.writerows(rows)
-            if name != "production":
-                sc.open()  # the scored file: the next bake opens its input afresh anyway
     plot(rows, out.with_suffix(".png"))
     print(f"scale_bench: wrote {out} and {out.with_suffix('.png')}")
     return 0
