@@ -183,6 +183,18 @@ class OVRAD_PG_settings(bpy.types.PropertyGroup):
         max=1 << 28,
         soft_max=1 << 26,
     )
+    max_rays: IntProperty(
+        name="Maximum Rays",
+        description=(
+            "Transport rays cast at most, in all (0: no limit): a very large atlas gets fewer "
+            "surface samples and rays per sample, so time and memory stop growing with the patch "
+            "count (the light of bakes comes mostly from their own final gather)"
+        ),
+        default=_SOLVE.max_rays,
+        min=0,
+        max=1 << 30,
+        soft_max=1 << 26,
+    )
     bake_direct: BoolProperty(
         name="Sharp Direct Light",
         description=(
@@ -322,6 +334,7 @@ def solve_settings(props: OVRAD_PG_settings) -> SolveSettings:
         rule=props.solve_rule,
         rays_per_point=props.rays_per_point,
         min_rays=props.min_rays,
+        max_rays=props.max_rays,
         gather_rays=props.gather_rays,
     )
 

@@ -202,11 +202,18 @@ def _soft_chunk(lamp: Lamp, pts, nrm, rays, eps: float, samples: int, seed: int)
     return e_n * seen.sum(axis=1) / norm, len(r)
 
 
+def area_side(samples: int) -> int:
+    """Points per side of an area lamp's rule for `samples` shadow rays per point: 8 (64 points)
+    from 16 samples up, as many as a smaller budget allows below that (at least 2 x 2)."""
+    return int(np.clip(round(2.0 * np.sqrt(max(samples, 1))), 2, 8))
+
+
 def lamp_irradiance(
     lamps, points: np.ndarray, normals: np.ndarray, rays, extent: float, samples: int = 16
 ) -> tuple[np.ndarray, int]:
     """Direct irradiance (m, 3) in W/m^2 at points with unit normals, shadowed; and rays cast.
-    samples: shadow rays per point for a lamp with a radius or a sun with an angle."""
+    samples: shadow rays per point for a lamp with a radius or a sun with an angle; an area lamp
+    takes area_side(samples)^2 (64 at the defaults, fewer only under a ray budget)."""
     pts = np.asarray(points, np.float64)
     nrm = np.asarray(normals, np.float64)
     total = np.zeros((len(pts), 3))
@@ -234,7 +241,7 @@ def lamp_irradiance(
             total += e[:, None] * color
             continue
         if lamp.kind == "AREA":
-            src, w = area_samples(lamp)
+            src, w = area_samples(lamp, area_side(samples))
         else:
             src, w = np.asarray(lamp.position, float)[None], np.ones(1)
         for s, ws in zip(src, w, strict=True):

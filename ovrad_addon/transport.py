@@ -50,12 +50,14 @@ def receiver_points(atlas, index, q: int = 4, rings: int = 1) -> ReceiverPoints:
 @dataclass(frozen=True)
 class Transport:
     """R = diag(rho_c) G per colour channel; G (n x n, csc for column access), rho (n, 3) the
-    reflectance of each patch (averaged over its support), the receiver points, rays cast."""
+    reflectance of each patch (averaged over its support), the receiver points, rays cast, and
+    how many of them escaped (hit nothing: they saw the sky, if there is one)."""
 
     geometric: csc_matrix
     rho: np.ndarray
     points: ReceiverPoints
     rays: int
+    escaped: int = -1  # -1: not counted
 
     def received(self, cols: np.ndarray, unshot: np.ndarray) -> np.ndarray:
         """EC (n, 3): light landing in every test region when patches `cols` shoot unshot (len, 3)."""
@@ -185,10 +187,13 @@ def gather_transport(
         # summed per (h, k) within the chunk: memory follows G, not rays
         part = coo_matrix((a.data * ray_w[a.row], (owner[a.row], a.col)), shape=(n, n)).tocsr().tocoo()
         # int32 indices: G's assembly holds every chunk's entries at once
-        return part.row.astype(np.int32), part.col.astype(np.int32), part.data, sl.stop
+        escaped = len(dirs) - len(hits.ray)
+        return part.row.astype(np.int32), part.col.astype(np.int32), part.data, escaped, sl.stop
 
     rows, cols, vals = [], [], []
-    for r, c, v, done in threaded(chunk, len(starts), workers):
+    escaped = 0
+    for r, c, v, out, done in threaded(chunk, len(starts), workers):
+        escaped += out
         rows.append(r)
         cols.append(c)
         vals.append(v)
@@ -200,4 +205,4 @@ def gather_transport(
     albedo = index.surfaces.reflectance_at(pts.triangle, pts.points)
     np.add.at(rho, pts.owner, albedo * pts.weight[:, None])
     rho /= np.maximum(np.bincount(pts.owner, weights=pts.weight, minlength=n), 1e-300)[:, None]
-    return Transport(geometric=G, rho=rho, points=pts, rays=m * rays_per_point)
+    return Transport(geometric=G, rho=rho, points=pts, rays=m * rays_per_point, escaped=escaped)

@@ -85,6 +85,7 @@ OPTIONS = [
     ("solve", "--tolerance", dict(type=float, help="stop when unshot light < this fraction of the emitted")),
     ("solve", "--rays-per-point", dict(type=int, help="hemisphere rays per surface sample (form factors)")),
     ("solve", "--min-rays", dict(type=int, help="transport rays cast at least, in all (0: no floor)")),
+    ("solve", "--max-rays", dict(type=int, help="transport rays cast at most, in all (0: no ceiling)")),
     (
         "solve",
         "--refine",
@@ -149,6 +150,8 @@ def parse(argv: list[str]) -> argparse.Namespace:
         raise BatchError(f"--gather-rays must be at least 0, got {args.gather_rays}")
     if args.min_rays is not None and not 0 <= args.min_rays <= 1 << 28:
         raise BatchError(f"--min-rays must be between 0 and {1 << 28}, got {args.min_rays}")
+    if args.max_rays is not None and not 0 <= args.max_rays <= 1 << 30:
+        raise BatchError(f"--max-rays must be between 0 and {1 << 30}, got {args.max_rays}")
     if args.patch_size is not None and not args.patch_size > 0:
         raise BatchError(f"--patch-size must be positive, got {args.patch_size}")
     if args.tolerance is not None and not 0 < args.tolerance < 1:
@@ -213,6 +216,7 @@ SOLVE_PROPS = {
     "tolerance": "solve_tolerance",
     "rays_per_point": "rays_per_point",
     "min_rays": "min_rays",
+    "max_rays": "max_rays",
 }
 
 
@@ -430,6 +434,7 @@ def make_report(args, module, props, paths, receivers, atlases, stats, images, s
     report["overlaps_kept"] = stats.get("overlaps_kept")
     report |= dict(overlap=round(props.overlap, 6), tolerance=float(f"{props.solve_tolerance:.6g}"))
     report |= dict(quality=props.quality.lower(), gather_rays=props.gather_rays, min_rays=props.min_rays)
+    report |= dict(max_rays=props.max_rays, transport_rays=stats.get("transport_rays"))
     report |= dict(target=args.target, quantity=args.quantity, images=images, not_baked=skipped)
     report["attribute"] = args.attribute if args.target == "vertex" else None
     return report

@@ -221,3 +221,25 @@ def test_a_closed_room_under_a_sky_is_refused_as_unlit():
     problem = prepare(s, build_atlas(s, AtlasSettings(patch_count=50)), SolveSettings(min_rays=1 << 16))
     with pytest.raises(OvradError, match="world emits, and its light reaches no surface"):
         solve(problem, sky=Sky((1.0, 1.0, 1.0)))
+
+
+def test_a_sky_no_ray_escapes_to_is_left_out_of_the_direct_light():
+    # a closed room lit by its own glow under a bright world: no transport ray escapes, so neither
+    # the first shot nor the bakes cast sky rays; an open box keeps its sky
+    sky = Sky((5.0, 5.0, 5.0))
+    base = scenes.cube(inward=True)
+    closed = Surfaces.from_arrays(base.vertices, base.triangles, reflectance=[0.5] * 3, emission=[1.0] * 3)
+    problem = prepare(
+        closed, build_atlas(closed, AtlasSettings(patch_count=100)), SolveSettings(min_rays=1 << 16)
+    )
+    assert problem.transport.escaped == 0 and problem.transport.rays >= 1 << 16
+    assert direct_light(problem, sky=sky).sky is None
+    state = solve(problem, settings=SolveSettings(tolerance=1e-6), sky=sky)
+    pts, tri = scenes.sample_surface(closed, 2000, seed=5)
+    np.testing.assert_allclose(radiance_at(problem, state.radiosity, pts, tri, 1), 1.0 / (1 - 0.5), rtol=5e-3)
+    open_box = Surfaces.from_arrays(base.vertices, base.triangles[2:], reflectance=[0.5] * 3)  # a face less
+    problem = prepare(
+        open_box, build_atlas(open_box, AtlasSettings(patch_count=100)), SolveSettings(min_rays=1 << 16)
+    )
+    assert problem.transport.escaped > 0
+    assert direct_light(problem, sky=sky).sky is sky

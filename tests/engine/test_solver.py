@@ -8,6 +8,7 @@ import pytest
 import scenes
 from ovrad_addon.atlas import build_atlas, index_surfaces
 from ovrad_addon.errors import OvradError
+from ovrad_addon.lights import area_side
 from ovrad_addon.overlap import alpha_at, overlap_matrix, patch_average, reconstruct
 from ovrad_addon.pipeline import within_budget
 from ovrad_addon.settings import AtlasSettings
@@ -208,6 +209,8 @@ def test_budget_helpers():
     assert within_budget(16, 1000, 0, 4) == 16 and within_budget(16, 1000, 16_000, 4) == 16
     assert within_budget(16, 1000, 8_000, 4) == 8 and within_budget(16, 1000, 1_000, 4) == 4
     assert within_budget(2, 1000, 1_000, 4) == 2  # the floor never raises what was asked
+    # an area lamp's rule: 8 x 8 points at the solve's 16 samples and the bakes' 64, fewer under a budget
+    assert area_side(16) == area_side(64) == 8 and area_side(4) == 4 and area_side(1) == 2
 
 
 def test_a_cancelled_transport_leaves_no_memory_behind():
