@@ -93,6 +93,7 @@ class SolveJob:
 
     def stats(self) -> dict:
         """What a finished solve did (empty before it has a state): rays, transport_rays,
+        transport_escaped (of those, the rays that left the scene: 0 leaves a sky out),
         form_factors_reused, overlaps_kept (patches whose C was kept with the atlas, not integrated),
         prepare_seconds (per stage of prepare(): index, overlap, transport; empty when the form
         factors were reused), prepare_peak_mb (peak resident MiB per stage of prepare(), the same
@@ -103,6 +104,7 @@ class SolveJob:
         return {
             "rays": int(st.rays),
             "transport_rays": int(self.problem.rays),
+            "transport_escaped": int(self.problem.transport.escaped),
             "form_factors_reused": bool(self.reused),
             "overlaps_kept": int(self.problem.kept),
             "prepare_seconds": {} if self.reused else dict(self.problem.seconds),

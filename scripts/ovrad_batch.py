@@ -435,6 +435,7 @@ def make_report(args, module, props, paths, receivers, atlases, stats, images, s
     report |= dict(overlap=round(props.overlap, 6), tolerance=float(f"{props.solve_tolerance:.6g}"))
     report |= dict(quality=props.quality.lower(), gather_rays=props.gather_rays, min_rays=props.min_rays)
     report |= dict(max_rays=props.max_rays, transport_rays=stats.get("transport_rays"))
+    report["transport_escaped"] = stats.get("transport_escaped")
     report |= dict(target=args.target, quantity=args.quantity, images=images, not_baked=skipped)
     report["attribute"] = args.attribute if args.target == "vertex" else None
     return report

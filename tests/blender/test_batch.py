@@ -75,6 +75,7 @@ def test_vertex_bake_saves_attributes_report_and_picture(ovrad, run_blender, tmp
     assert set(r["solve_peak_memory_mb"]) == {"index", "overlap", "transport"}
     assert all(50 < v < 24_000 for v in [*r["peak_memory_mb"].values(), *r["solve_peak_memory_mb"].values()])
     assert r["peak_memory_mb"]["solve"] >= max(r["solve_peak_memory_mb"].values())
+    assert 0 < r["transport_escaped"] < r["transport_rays"]  # the box is open at the front
     assert r["output"] == str(out) and r["input"] == str(CORNELL)
     assert picture.stat().st_size > 1000
     attrs, _ = inspect(run_blender, out)
