@@ -134,7 +134,7 @@ def solve_progressive(
     if not 0.0 < share <= 1.0:
         raise OvradError(f"share must be in (0, 1], got {share}")
     if rule == "exact":
-        lu = lu or factorize(C)
+        lu = lu if lu is not None else factorize(C)
         to_basis = lu.solve
     else:
         A = np.asarray(support_area if support_area is not None else np.asarray(C.sum(axis=1)).ravel())
