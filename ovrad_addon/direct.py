@@ -149,10 +149,16 @@ def emitter_irradiance(
 
 
 def direct_irradiance(
-    surfaces: Surfaces, rays, light: DirectLight, points: np.ndarray, normals: np.ndarray
+    surfaces: Surfaces,
+    rays,
+    light: DirectLight,
+    points: np.ndarray,
+    normals: np.ndarray,
+    sky_at: np.ndarray | None = None,
 ) -> tuple[np.ndarray, int]:
     """Direct irradiance (m, 3) in W/m^2 at points with unit normals: lamps, the sampled
-    emitters and the sky of `light`; and the rays cast."""
+    emitters and the sky of `light`; and the rays cast. sky_at (m,) bool: the points that may see
+    the sky (the others get none of it, and cast no sky rays); None: all."""
     pts = np.asarray(points, np.float64).reshape(-1, 3)
     nrm = np.asarray(normals, np.float64).reshape(-1, 3)
     H = np.zeros((len(pts), 3))
@@ -170,7 +176,8 @@ def direct_irradiance(
         H += h
         cast += n
     if light.sky is not None and light.sky.emits:
-        h, n = sky_irradiance(light.sky, rays, pts, nrm, surfaces.extent, light.sky_samples)
-        H += h
+        at = np.arange(len(pts)) if sky_at is None else np.flatnonzero(sky_at)
+        h, n = sky_irradiance(light.sky, rays, pts[at], nrm[at], surfaces.extent, light.sky_samples)
+        H[at] += h
         cast += n
     return H, cast

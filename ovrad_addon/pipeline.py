@@ -17,7 +17,15 @@ from .atlas import Atlas, SurfaceIndex, index_surfaces
 from .clutter import clutter_from_atlas
 from .direct import DirectLight, direct_irradiance, triangle_normals
 from .errors import OvradError
-from .gather import MAX_RAYS, NEAR_LIGHT_SAMPLES, NEAR_SKY_SAMPLES, NearField, gather_unique, sampled_emission
+from .gather import (
+    MAX_RAYS,
+    NEAR_LIGHT_SAMPLES,
+    NEAR_SKY_SAMPLES,
+    NearField,
+    gather_unique,
+    may_see_sky,
+    sampled_emission,
+)
 from .kept_overlaps import KeptOverlaps, usable
 from .lights import Lamp
 from .memory import StagePeaks
@@ -431,7 +439,10 @@ def solve(
             sky_samples=within_budget(settings.sky_samples, points, shadow_budget, MIN_SKY_SAMPLES),
         )
         small = bool(np.any(light.emitters))
-        H, direct_rays = direct_irradiance(problem.surfaces, problem.index.rays, light, rp.points, rp.normals)
+        seen = None if T.sky_seen is None else T.sky_seen[rp.owner]
+        H, direct_rays = direct_irradiance(
+            problem.surfaces, problem.index.rays, light, rp.points, rp.normals, seen
+        )
         received = T.test(H, problem.surfaces.reflectance_at(rp.triangle, rp.points))
         if not np.any(received > 0) and not np.any(E > 0):
             if sky is not None and sky.emits:
@@ -504,7 +515,9 @@ def _at_points(
     if first_shot.shape != radiosity.shape:
         raise OvradError("the first shot does not match the radiosity: solve again")
     normals = triangle_normals(problem.surfaces, tri) * side[:, None]
-    H = direct_irradiance(problem.surfaces, problem.index.rays, light, pts, normals)[0]
+    H = direct_irradiance(problem.surfaces, problem.index.rays, light, pts, normals, may_see_sky(problem, a))[
+        0
+    ]
     covered = np.asarray(a.sum(axis=1)).ravel() > 0
     coeffs = radiosity - first_shot
     # --- final gather (gather.py): the indirect light comes from rays cast at the points, the

@@ -58,6 +58,9 @@ class Transport:
     points: ReceiverPoints
     rays: int
     escaped: int = -1  # -1: not counted
+    # (n,) bool: the patch may see the sky: some of its rays escaped, or it cast too few to tell
+    # (SKY_TEST_RAYS); None: unknown. Bake points and near gather hits skip sky rays elsewhere.
+    sky_seen: np.ndarray | None = None
 
     def received(self, cols: np.ndarray, unshot: np.ndarray) -> np.ndarray:
         """EC (n, 3): light landing in every test region when patches `cols` shoot unshot (len, 3)."""
@@ -83,6 +86,7 @@ class Transport:
 
 POINT_RAYS = 256  # rays per receiver point a min_rays budget aims at before it adds points
 MAX_SCALE = 16
+SKY_TEST_RAYS = 256  # a patch whose this many rays all hit something sees under ~1/256 of sky
 MIN_POINT_RAYS = 4  # under a max_rays budget, receiver points are halved before rays go below this
 MAX_POINT_RAYS = 1 << 16  # one chunk's arrays stay within a few MB per point
 
@@ -187,11 +191,13 @@ def gather_transport(
         # summed per (h, k) within the chunk: memory follows G, not rays
         part = coo_matrix((a.data * ray_w[a.row], (owner[a.row], a.col)), shape=(n, n)).tocsr().tocoo()
         # int32 indices: G's assembly holds every chunk's entries at once
-        escaped = len(dirs) - len(hits.ray)
+        out = np.ones(len(dirs), bool)
+        out[hits.ray] = False
+        escaped = np.bincount(np.repeat(pts.owner[sl], rays_per_point)[out], minlength=n)
         return part.row.astype(np.int32), part.col.astype(np.int32), part.data, escaped, sl.stop
 
     rows, cols, vals = [], [], []
-    escaped = 0
+    escaped = np.zeros(n, np.int64)
     for r, c, v, out, done in threaded(chunk, len(starts), workers):
         escaped += out
         rows.append(r)
@@ -205,4 +211,6 @@ def gather_transport(
     albedo = index.surfaces.reflectance_at(pts.triangle, pts.points)
     np.add.at(rho, pts.owner, albedo * pts.weight[:, None])
     rho /= np.maximum(np.bincount(pts.owner, weights=pts.weight, minlength=n), 1e-300)[:, None]
-    return Transport(geometric=G, rho=rho, points=pts, rays=m * rays_per_point, escaped=escaped)
+    cast = np.bincount(pts.owner, minlength=n) * rays_per_point
+    sky_seen = (escaped > 0) | (cast < SKY_TEST_RAYS)
+    return Transport(G, rho, pts, m * rays_per_point, int(escaped.sum()), sky_seen)

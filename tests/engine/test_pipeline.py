@@ -9,9 +9,11 @@ from reference import analytic
 
 import scenes
 from ovrad_addon.atlas import build_atlas
-from ovrad_addon.direct import direct_irradiance
+from ovrad_addon.direct import direct_irradiance, triangle_normals
 from ovrad_addon.errors import OvradError
+from ovrad_addon.gather import may_see_sky
 from ovrad_addon.lights import Lamp, lamp_irradiance
+from ovrad_addon.overlap import alpha_at
 from ovrad_addon.pipeline import (
     SolveSettings,
     direct_light,
@@ -214,6 +216,26 @@ def test_sky_through_a_window_lights_what_sees_it_and_not_what_a_shelf_hides():
     # (in this white room the bounced light is most of it: measured 0.146 at the lit point, of
     # which 0.032 direct, and 0.077 under the shelf)
     assert np.all(out[0] > 0.75 * H[0] / np.pi) and np.all(out[1] > 0) and np.all(out[1] < 0.7 * out[0])
+
+
+def test_sky_rays_are_cast_only_where_a_patch_saw_out_and_change_nothing():
+    # the window room: patches on the window's own wall (and others hidden from it) cast no
+    # transport ray out of the window, so points there cast no sky rays; the light is the same
+    room = scenes.window_room()
+    s = Surfaces.from_arrays(room.vertices, room.triangles, reflectance=[0.75] * 3)
+    sky = Sky((1.0, 2.0, 3.0))
+    problem = prepare(s, build_atlas(s, AtlasSettings(patch_count=400)), SolveSettings(min_rays=1 << 18))
+    seen = problem.transport.sky_seen
+    assert 0.2 * len(seen) < seen.sum() < 0.95 * len(seen)
+    pts, tri = scenes.sample_surface(s, 4000, seed=8)
+    nrm = triangle_normals(s, tri)
+    a = alpha_at(problem.atlas, problem.index, pts, tri, 1)
+    light = direct_light(problem, settings=SolveSettings(bake_sky_samples=1024), sky=sky)
+    mask = may_see_sky(problem, a)
+    H_all, rays_all = direct_irradiance(s, problem.index.rays, light, pts, nrm)
+    H, rays = direct_irradiance(s, problem.index.rays, light, pts, nrm, mask)
+    np.testing.assert_array_equal(H, H_all)  # every point left out gets no sky light anyway
+    assert np.any(H_all[mask] > 0) and rays < 0.9 * rays_all
 
 
 def test_a_closed_room_under_a_sky_is_refused_as_unlit():
