@@ -8,8 +8,9 @@ arrays, tests/scenes.py), or the large interior of benchmarks/large_interior.py 
 - raw embreex closest-hit rays/s on the same geometry and the same kind of rays (cosine
   directions from the receiver points, in the transport's batch size), and the transport's
   effective rays/s (all of gather_transport: directions, casts, alpha at the hits, summing G);
-- seconds of the atlas (placement and C), the transport, the solve to 1e-3 unshot, and a bake of
-  20 000 surface points (final gather), and the peak resident memory of each (memory.py);
+- seconds of the atlas (placement and C, which the solve then reuses as Generate keeps it), the
+  transport, the solve to 1e-3 unshot, and a bake of 20 000 surface points (final gather), and the
+  peak resident memory of each (memory.py);
 - the reconstructed radiance at those points against the same problem solved to 1e-7
   (the converged reference of equation (9)): relative RMS error of stopping at 1e-3.
 Writes benchmarks/results/<name>.csv and <name>.png (log-log: seconds and peak memory against
@@ -36,7 +37,8 @@ def one(count: int, beta: str, scene: str) -> dict:
     import numpy as np
 
     import scenes
-    from ovrad_addon.atlas import build_atlas
+    from ovrad_addon.atlas import build_atlas_and_overlaps
+    from ovrad_addon.kept_overlaps import keep
     from ovrad_addon.memory import StagePeaks
     from ovrad_addon.pipeline import SolveSettings, direct_light, prepare, radiance_at, solve
     from ovrad_addon.settings import AtlasSettings
@@ -50,12 +52,15 @@ def one(count: int, beta: str, scene: str) -> dict:
     else:
         s = scenes.cornell()
     t0 = time.perf_counter()
+    st = AtlasSettings(patch_count=count, beta=beta, max_patches=4_000_000)
     with peaks.stage("atlas"):
-        atlas = build_atlas(s, AtlasSettings(patch_count=count, beta=beta, max_patches=4_000_000))
+        atlas, C = build_atlas_and_overlaps(s, st)
     t_atlas = time.perf_counter() - t0
     settings = SolveSettings()
     with peaks.stage("prepare"):
-        problem = prepare(s, atlas, settings)
+        # C as Generate keeps it with the atlas: the solve uses it instead of integrating it again
+        problem = prepare(s, atlas, settings, kept=[keep(s, atlas, C, st.quadrature, st.crease_angle)])
+    assert problem.kept == len(atlas)
     T = problem.transport
     # raw embree on the same rays: one batch the size the transport uses
     rp = T.points
