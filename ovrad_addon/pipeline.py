@@ -27,7 +27,7 @@ from .gather import (
     sampled_emission,
 )
 from .kept_overlaps import KeptOverlaps, usable
-from .lights import Lamp
+from .lights import Lamp, area_side
 from .memory import StagePeaks
 from .overlap import alpha_at, overlap_matrix, patch_average, patch_quadrature, reconstruct
 from .progress import StageCallback, report_stage
@@ -433,9 +433,14 @@ def solve(
         rp = T.points
         points = len(rp.owner)
         shadow_budget = SHADOW_BUDGET * settings.max_rays
+        samples = within_budget(settings.light_samples, points, shadow_budget, MIN_LIGHT_SAMPLES)
+        if any(lamp.kind == "AREA" for lamp in lamps):
+            # an area lamp casts area_side(samples)^2 rays per point (64 at the default 16)
+            while samples > MIN_LIGHT_SAMPLES and area_side(samples) ** 2 * points > shadow_budget:
+                samples -= 1
         light = replace(
             direct_light(problem, lamps, settings, emission_scale, sky),
-            samples=within_budget(settings.light_samples, points, shadow_budget, MIN_LIGHT_SAMPLES),
+            samples=samples,
             sky_samples=within_budget(settings.sky_samples, points, shadow_budget, MIN_SKY_SAMPLES),
         )
         small = bool(np.any(light.emitters))
