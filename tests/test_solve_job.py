@@ -42,7 +42,9 @@ def test_the_job_module_imports_no_blender_module():
 
 def solved(rays=0):
     """A stand-in for a prepared problem."""
-    return types.SimpleNamespace(rays=rays, kept=0, seconds={})
+    return types.SimpleNamespace(
+        rays=rays, kept=0, seconds={}, memory={}, transport=types.SimpleNamespace(escaped=0)
+    )
 
 
 class Inputs:
@@ -64,7 +66,9 @@ def fake_engine(sj, monkeypatch, reports, final=None, error=None):
         assert kept == Inputs.kept, "the job hands the engine the overlaps the atlases keep"
         assert progress(0.5, "casting transport rays") in (True, False)
         seconds = {"index": 0.1, "overlap": 0.0, "transport": 2.0}
-        return types.SimpleNamespace(rays=123, kept=40, seconds=seconds)
+        memory = {"index": 500.0, "overlap": 510.0, "transport": 900.0}
+        transport = types.SimpleNamespace(escaped=17)
+        return types.SimpleNamespace(rays=123, kept=40, seconds=seconds, memory=memory, transport=transport)
 
     def solve(problem, lamps, settings, progress=None, sky=None):
         calls["solve"] += 1
@@ -107,9 +111,11 @@ def test_a_job_prepares_solves_once_and_reports_converged(sj, monkeypatch):
     assert job.stats() == {
         "rays": 7,
         "transport_rays": 123,
+        "transport_escaped": 17,
         "form_factors_reused": False,
         "overlaps_kept": 40,
         "prepare_seconds": {"index": 0.1, "overlap": 0.0, "transport": 2.0},
+        "prepare_peak_mb": {"index": 500.0, "overlap": 510.0, "transport": 900.0},
         "shots": 2,
         "unshot_fraction": 1e-3,
         "converged": True,
