@@ -186,15 +186,17 @@ def _near_values(problem, near: NearField, points, triangles, sides, alpha) -> n
     surfaces = index.surfaces
     normals = index.charts.normals[triangles] * sides[:, None]
     pts = inside(surfaces, points, triangles)
-    H = direct_irradiance(surfaces, index.rays, near.light, pts, normals, may_see_sky(problem, alpha))[0]
+    sky_at = may_see_sky(problem, alpha, near.light)
+    H = direct_irradiance(surfaces, index.rays, near.light, pts, normals, sky_at)[0]
     return surfaces.reflectance_at(triangles, pts) * H + alpha @ (near.indirect + near.extra)
 
 
-def may_see_sky(problem, alpha) -> np.ndarray | None:
+def may_see_sky(problem, alpha, light) -> np.ndarray | None:
     """(k,) bool: the points (alpha (k, n) of the patches there) that may see the sky: a patch
-    there may (Transport.sky_seen), or none covers them; None: unknown (no transport)."""
+    there may (Transport.sky_seen), or none covers them; None: all of them, or `light` has no sky
+    (then nothing is computed: bake chunks call this for every point)."""
     t = problem.transport
-    if t is None or t.sky_seen is None:
+    if light.sky is None or t is None or t.sky_seen is None:
         return None
     return (alpha @ t.sky_seen.astype(np.float64) > 0) | (np.asarray(alpha.sum(axis=1)).ravel() <= 0)
 

@@ -520,9 +520,8 @@ def _at_points(
     if first_shot.shape != radiosity.shape:
         raise OvradError("the first shot does not match the radiosity: solve again")
     normals = triangle_normals(problem.surfaces, tri) * side[:, None]
-    H = direct_irradiance(problem.surfaces, problem.index.rays, light, pts, normals, may_see_sky(problem, a))[
-        0
-    ]
+    sky_at = may_see_sky(problem, a, light)
+    H = direct_irradiance(problem.surfaces, problem.index.rays, light, pts, normals, sky_at)[0]
     covered = np.asarray(a.sum(axis=1)).ravel() > 0
     coeffs = radiosity - first_shot
     # --- final gather (gather.py): the indirect light comes from rays cast at the points, the

@@ -231,7 +231,7 @@ def test_sky_rays_are_cast_only_where_a_patch_saw_out_and_change_nothing():
     nrm = triangle_normals(s, tri)
     a = alpha_at(problem.atlas, problem.index, pts, tri, 1)
     light = direct_light(problem, settings=SolveSettings(bake_sky_samples=1024), sky=sky)
-    mask = may_see_sky(problem, a)
+    mask = may_see_sky(problem, a, light)
     H_all, rays_all = direct_irradiance(s, problem.index.rays, light, pts, nrm)
     H, rays = direct_irradiance(s, problem.index.rays, light, pts, nrm, mask)
     np.testing.assert_array_equal(H, H_all)  # every point left out gets no sky light anyway
