@@ -83,12 +83,15 @@ class NearField:
     """How hits closer than `reach` x the local patch radius are evaluated: the direct light of
     `light` computed at the hit, plus from the patches (n, 3 each) `indirect` (the solved radiosity
     less its first shot and emission: the light that came by way of other surfaces) and `extra` (the
-    emission the far hits count too: emitters the bake points do not sample as direct light)."""
+    emission the far hits count too: emitters the bake points do not sample as direct light).
+    sky_seen (n,) bool: the patches whose near hits cast sky rays (pipeline.sky_patches); None:
+    every one, if the light has a sky."""
 
     light: DirectLight
     indirect: np.ndarray
     extra: np.ndarray
     reach: float = 1.0
+    sky_seen: np.ndarray | None = None
 
 
 def sampled_emission(atlas, index, emitters: np.ndarray | None, scale: float = 1.0, q: int = 4) -> np.ndarray:
@@ -186,19 +189,18 @@ def _near_values(problem, near: NearField, points, triangles, sides, alpha) -> n
     surfaces = index.surfaces
     normals = index.charts.normals[triangles] * sides[:, None]
     pts = inside(surfaces, points, triangles)
-    sky_at = may_see_sky(problem, alpha, near.light)
+    sky_at = may_see_sky(alpha, near.sky_seen) if near.light.sky is not None else None
     H = direct_irradiance(surfaces, index.rays, near.light, pts, normals, sky_at)[0]
     return surfaces.reflectance_at(triangles, pts) * H + alpha @ (near.indirect + near.extra)
 
 
-def may_see_sky(problem, alpha, light) -> np.ndarray | None:
+def may_see_sky(alpha, seen: np.ndarray | None) -> np.ndarray | None:
     """(k,) bool: the points (alpha (k, n) of the patches there) that may see the sky: a patch
-    there may (Transport.sky_seen), or none covers them; None: all of them, or `light` has no sky
-    (then nothing is computed: bake chunks call this for every point)."""
-    t = problem.transport
-    if light.sky is None or t is None or t.sky_seen is None:
+    there is marked in `seen` (n,) (pipeline.sky_patches), or none covers them; None: all of them
+    (seen is None)."""
+    if seen is None:
         return None
-    return (alpha @ t.sky_seen.astype(np.float64) > 0) | (np.asarray(alpha.sum(axis=1)).ravel() <= 0)
+    return (alpha @ np.asarray(seen, np.float64) > 0) | (np.asarray(alpha.sum(axis=1)).ravel() <= 0)
 
 
 def inside(surfaces, points: np.ndarray, triangles) -> np.ndarray:

@@ -62,6 +62,14 @@ class Sky:
     def __repr__(self) -> str:
         return f"Sky({self.key()})"
 
+    def mean_radiance(self) -> np.ndarray:
+        """(3,) radiance averaged over the whole sphere of directions (by solid angle)."""
+        if self.image is None:
+            return np.asarray(self.color, float)
+        omega, _ = _pixel_power(self)
+        img = np.asarray(self.image, float)
+        return np.einsum("hw,hwc->c", omega, img) / omega.sum()
+
     def radiance(self, directions: np.ndarray) -> np.ndarray:
         """Radiance (k, 3) arriving from unit world directions (k, 3)."""
         d = np.asarray(directions, float).reshape(-1, 3)

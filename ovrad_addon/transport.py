@@ -61,6 +61,9 @@ class Transport:
     # (n,) bool: the patch may see the sky: some of its rays escaped, or it cast too few to tell
     # (SKY_TEST_RAYS); None: unknown. Bake points and near gather hits skip sky rays elsewhere.
     sky_seen: np.ndarray | None = None
+    # (n,) the fraction of each patch's rays that escaped: its cosine-weighted share of the sky;
+    # NaN where it cast fewer than SKY_TEST_RAYS (too few to tell)
+    sky_fraction: np.ndarray | None = None
 
     def received(self, cols: np.ndarray, unshot: np.ndarray) -> np.ndarray:
         """EC (n, 3): light landing in every test region when patches `cols` shoot unshot (len, 3)."""
@@ -212,5 +215,35 @@ def gather_transport(
     np.add.at(rho, pts.owner, albedo * pts.weight[:, None])
     rho /= np.maximum(np.bincount(pts.owner, weights=pts.weight, minlength=n), 1e-300)[:, None]
     cast = np.bincount(pts.owner, minlength=n) * rays_per_point
+    escaped, cast = _sky_test(index, pts, escaped, cast, offset, seed)
     sky_seen = (escaped > 0) | (cast < SKY_TEST_RAYS)
-    return Transport(G, rho, pts, m * rays_per_point, int(escaped.sum()), sky_seen)
+    fraction = np.where(cast >= SKY_TEST_RAYS, escaped / np.maximum(cast, 1), np.nan)
+    return Transport(G, rho, pts, m * rays_per_point, int(escaped.sum()), sky_seen, fraction)
+
+
+def _sky_test(index, pts: ReceiverPoints, escaped: np.ndarray, cast: np.ndarray, offset: float, seed: int):
+    """escaped and cast (n,) with SKY_TEST_RAYS rays in all from each patch that cast fewer (and has
+    receiver points): extra occlusion rays from its receiver points, to tell whether it sees the
+    sky and how much of it (Transport.sky_fraction). Small patches under a large atlas's ray budget
+    and ball patches over clutter cast a few dozen transport rays each; without this test they all
+    counted as seeing the sky, and every bake point and near gather hit on them cast sky rays
+    (most of the sky rays of the production room's bake under a grey world)."""
+    counts = np.bincount(pts.owner, minlength=len(cast))
+    short = np.flatnonzero((cast < SKY_TEST_RAYS) & (counts > 0))
+    if len(short) == 0:
+        return escaped, cast
+    order = np.argsort(pts.owner, kind="stable")  # each patch's receiver points, together
+    first = np.searchsorted(pts.owner[order], short)
+    want = SKY_TEST_RAYS - cast[short]
+    # spread each patch's extra rays over its receiver points, round-robin from its first
+    owner = np.repeat(short, want)
+    k = np.arange(len(owner)) - np.repeat(np.cumsum(want) - want, want)
+    point = order[np.repeat(first, want) + k % counts[owner]]
+    nrm = pts.normals[point]
+    rng = np.random.default_rng([seed, 1 << 20])
+    dirs = cosine_directions(nrm, 1, rng).reshape(-1, 3)
+    out = ~index.rays.occluded(pts.points[point] + offset * nrm, dirs, np.inf)
+    escaped = escaped + np.bincount(owner[out], minlength=len(cast))
+    cast = cast.copy()
+    cast[short] = SKY_TEST_RAYS
+    return escaped, cast

@@ -15,17 +15,20 @@ from ovrad_addon.gather import may_see_sky
 from ovrad_addon.lights import Lamp, lamp_irradiance
 from ovrad_addon.overlap import alpha_at
 from ovrad_addon.pipeline import (
+    SKY_SHARE,
     SolveSettings,
     direct_light,
     irradiance_at,
     patch_emission,
     prepare,
     radiance_at,
+    sky_patches,
     solve,
 )
 from ovrad_addon.settings import AtlasSettings
 from ovrad_addon.sky import Sky
 from ovrad_addon.surfaces import Surfaces
+from ovrad_addon.transport import SKY_TEST_RAYS
 
 RHO = 0.8
 
@@ -231,7 +234,7 @@ def test_sky_rays_are_cast_only_where_a_patch_saw_out_and_change_nothing():
     nrm = triangle_normals(s, tri)
     a = alpha_at(problem.atlas, problem.index, pts, tri, 1)
     light = direct_light(problem, settings=SolveSettings(bake_sky_samples=1024), sky=sky)
-    mask = may_see_sky(problem, a, light)
+    mask = may_see_sky(a, sky_patches(problem, light))
     H_all, rays_all = direct_irradiance(s, problem.index.rays, light, pts, nrm)
     H, rays = direct_irradiance(s, problem.index.rays, light, pts, nrm, mask)
     np.testing.assert_array_equal(H, H_all)  # every point left out gets no sky light anyway
@@ -265,3 +268,49 @@ def test_a_sky_no_ray_escapes_to_is_left_out_of_the_direct_light():
     )
     assert problem.transport.escaped > 0
     assert direct_light(problem, sky=sky).sky is sky
+
+
+def test_patches_that_cast_few_rays_are_tested_for_sky_and_a_closed_room_sees_none():
+    # under a small ray budget every patch casts fewer than SKY_TEST_RAYS transport rays: occlusion
+    # rays complete them, so a closed room's patches all tell they see no sky (they used to count
+    # as seeing it), and a lone floor's see nothing but sky
+    budget = SolveSettings(max_rays=20_000, min_rays=0)
+    closed = scenes.cube(inward=True)
+    problem = prepare(closed, build_atlas(closed, AtlasSettings(patch_count=200)), budget)
+    t = problem.transport
+    assert t.rays / len(problem.atlas) < SKY_TEST_RAYS
+    assert not np.any(t.sky_seen) and np.all(t.sky_fraction == 0.0)
+    v, tr = scenes.plane(size=2.0, n=2)
+    floor = Surfaces.from_arrays(v, tr, reflectance=[0.5] * 3)
+    problem = prepare(floor, build_atlas(floor, AtlasSettings(patch_count=200)), budget)
+    t = problem.transport
+    has_points = np.bincount(t.points.owner, minlength=len(problem.atlas)) > 0
+    assert has_points.sum() > 0.9 * len(has_points)
+    np.testing.assert_array_equal(t.sky_fraction[has_points], 1.0)
+    assert np.all(t.sky_seen)
+
+
+def test_sky_rays_are_left_out_where_the_sky_is_under_a_hundredth_of_the_light():
+    # the window room lit by a bright lamp under a dim sky: patches whose escaped rays say the sky
+    # brings them under 1 % of their light cast no sky rays; the direct light at points everywhere
+    # stays within a few tenths of a percent of casting sky rays at every point
+    room = scenes.window_room()
+    s = Surfaces.from_arrays(room.vertices, room.triangles, reflectance=[0.75] * 3)
+    sky = Sky((1.0, 1.0, 1.0))
+    lamp = Lamp(kind="POINT", position=(1.2, 1.8, 1.6), power=400.0)
+    problem = prepare(s, build_atlas(s, AtlasSettings(patch_count=400)), SolveSettings(min_rays=1 << 18))
+    state = solve(problem, (lamp,), SolveSettings(tolerance=1e-5), sky=sky)
+    light = direct_light(problem, (lamp,), SolveSettings(bake_sky_samples=1024), sky=sky)
+    seen = sky_patches(problem, light)
+    kept = sky_patches(problem, light, state.radiosity - patch_emission(problem))
+    assert kept.sum() < 0.8 * seen.sum() and kept.sum() > 0  # the rule drops some, keeps the window's
+    pts, tri = scenes.sample_surface(s, 4000, seed=8)
+    nrm = triangle_normals(s, tri)
+    a = alpha_at(problem.atlas, problem.index, pts, tri, 1)
+    H_all, rays_all = direct_irradiance(s, problem.index.rays, light, pts, nrm)
+    H, rays = direct_irradiance(s, problem.index.rays, light, pts, nrm, may_see_sky(a, kept))
+    assert rays < 0.5 * rays_all
+    # against all the light arriving there (direct and bounced, H = pi x irradiance_at)
+    total = np.pi * irradiance_at(problem, state.radiosity, pts, tri, 1, state.first_shot, light)
+    err = np.sqrt(np.sum((H - H_all) ** 2) / np.sum(total**2))
+    assert err < SKY_SHARE, err
