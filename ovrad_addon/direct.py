@@ -143,8 +143,11 @@ def emitter_irradiance(
         blocked = rays.occluded(origin, seg / length[:, None], length * (1 - 1e-6))
         cast += len(r_i)
         r_i, s_i = r_i[~blocked], s_i[~blocked]
-        g = cos_r[r_i, s_i] * cos_s[r_i, s_i] / d2[r_i, s_i] * src.area[s_i]
-        np.add.at(H, rs[r_i], g[:, None] * src.radiance[s_i])
+        # the unblocked pairs' geometric terms as a dense (points, samples) matrix: one product sums
+        # them per point (np.add.at per pair was a fifth of a production room's near-field time)
+        g = np.zeros(cos_r.shape)
+        g[r_i, s_i] = cos_r[r_i, s_i] * cos_s[r_i, s_i] / d2[r_i, s_i] * src.area[s_i]
+        H[rs] += g @ src.radiance
     return H, cast
 
 

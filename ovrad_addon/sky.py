@@ -170,6 +170,7 @@ def sky_irradiance(
             shadow_origin(pts[rs[r_i]], nrm[rs[r_i]], w, eps), w, np.full(len(r_i), np.inf)
         )
         cast += len(r_i)
-        r_i, k_i = r_i[~blocked], k_i[~blocked]
-        np.add.at(H, rs[r_i], cos[r_i, k_i][:, None] * weights[k_i])
+        seen = np.zeros(cos.shape)  # cos where the direction is open, as a dense (points, directions) matrix
+        seen[r_i[~blocked], k_i[~blocked]] = cos[r_i[~blocked], k_i[~blocked]]
+        H[rs] += seen @ weights
     return H, cast
