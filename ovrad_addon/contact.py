@@ -34,11 +34,14 @@ CHUNK = 8192  # patches whose rule points contacts() holds at once
 
 @dataclass(frozen=True)
 class Contacts:
-    """Per patch: anchor (n, 3) on its sheet, lift (n,) the segments' height, cut (n,) bool."""
+    """Per patch: anchor (n, 3) on its sheet, lift (n,) the segments' height, cut (n,) bool;
+    whole (n,) bool: a planar patch all of whose coarse rule points lie on its sheet, uncovered
+    (no border, footprint or hole within its disk or square, as far as the rule can tell)."""
 
     anchor: np.ndarray
     lift: np.ndarray
     cut: np.ndarray
+    whole: np.ndarray
 
 
 def _key(atlas) -> tuple:
@@ -57,12 +60,13 @@ def planar_patches(atlas, index) -> np.ndarray:
 
 def _rule(atlas, index, ids):
     """The on-sheet points of a coarse rule of patches ids, without the contact rule: (owner position
-    in ids, points, weights, triangles)."""
+    in ids, points, weights, triangles), and whether each patch had all its rule points on (len(ids),)."""
     from .overlap import patch_quadrature
 
     quad = patch_quadrature(atlas, index, ids, 4, rings=2, visibility=False)
     on = np.flatnonzero(quad.weights > 0)
-    return quad.owner[on], quad.points[on], quad.weights[on], quad.triangle[on]
+    whole = np.bincount(quad.owner, weights=quad.weights <= 0, minlength=len(ids)) == 0
+    return quad.owner[on], quad.points[on], quad.weights[on], quad.triangle[on], whole
 
 
 def _nearest(atlas, ids, owner, points, among) -> np.ndarray:
@@ -104,10 +108,11 @@ def contacts(atlas, index) -> Contacts:
     lift = _lift(atlas, index)
     anchor = atlas.centers.copy() if atlas.anchor is None else np.asarray(atlas.anchor, np.float64).copy()
     cut = np.zeros(n, bool)
+    whole = np.zeros(n, bool)
     every = planar_patches(atlas, index)
     for start in range(0, len(every), CHUNK):  # a patch's anchor and cut are its own: in chunks
         ids = every[start : start + CHUNK]
-        owner, points, _, _ = _rule(atlas, index, ids)
+        owner, points, _, _, whole[ids] = _rule(atlas, index, ids)
         todo = ~np.all(np.isfinite(anchor[ids]), axis=1)
         near = _nearest(atlas, ids, owner, points, todo[owner])
         got = near >= 0
@@ -116,7 +121,7 @@ def contacts(atlas, index) -> Contacts:
         blocked = _blocked(index, atlas.normals[g], lift[g], anchor[g], points)
         cut[ids] = np.bincount(owner, weights=blocked, minlength=len(ids)) > 0
     anchor = np.where(np.isfinite(anchor), anchor, atlas.centers)
-    out = Contacts(anchor, lift, cut)
+    out = Contacts(anchor, lift, cut, whole)
     index.cache[key] = out
     index.cache[("contacts of", id(atlas))] = (atlas, out)
     return out
@@ -127,7 +132,7 @@ def carry_over(atlas, index, keep: np.ndarray, selected) -> None:
     lift and cut are its own, so they are the ones contacts() would find again."""
     c = index.cache.get(_key(atlas))
     if c is not None:
-        index.cache[_key(selected)] = Contacts(c.anchor[keep], c.lift[keep], c.cut[keep])
+        index.cache[_key(selected)] = Contacts(c.anchor[keep], c.lift[keep], c.cut[keep], c.whole[keep])
 
 
 def split_at_contacts(atlas, index, pieces: int = MAX_PIECES, least: float = LEAST_PIECE):
@@ -166,7 +171,7 @@ def _parts(atlas, index, ids, lift, pieces: int, least: float):
     """split_at_contacts for planar patches ids: (patches, anchors, triangles) per kept part, in
     the order the atlas keeps them (first parts, second parts, ..., patches left whole)."""
     out = []
-    owner, points, weights, tri = _rule(atlas, index, ids)
+    owner, points, weights, tri, _ = _rule(atlas, index, ids)
     part = np.full(len(owner), -1, np.int64)
     heads = []
     for k in range(pieces):
