@@ -90,6 +90,7 @@ class Transport:
 POINT_RAYS = 256  # rays per receiver point a min_rays budget aims at before it adds points
 MAX_SCALE = 16
 SKY_TEST_RAYS = 256  # a patch whose this many rays all hit something sees under ~1/256 of sky
+SKY_TEST_SHARE = 0.1  # the sky test (_sky_test) casts at most this share of the transport's rays
 MIN_POINT_RAYS = 4  # under a max_rays budget, receiver points are halved before rays go below this
 MAX_POINT_RAYS = 1 << 16  # one chunk's arrays stay within a few MB per point
 
@@ -224,17 +225,19 @@ def gather_transport(
 def _sky_test(index, pts: ReceiverPoints, escaped: np.ndarray, cast: np.ndarray, offset: float, seed: int):
     """escaped and cast (n,) with SKY_TEST_RAYS rays in all from each patch that cast fewer (and has
     receiver points): extra occlusion rays from its receiver points, to tell whether it sees the
-    sky and how much of it (Transport.sky_fraction). Small patches under a large atlas's ray budget
-    and ball patches over clutter cast a few dozen transport rays each; without this test they all
-    counted as seeing the sky, and every bake point and near gather hit on them cast sky rays
-    (most of the sky rays of the production room's bake under a grey world)."""
+    sky and how much of it (Transport.sky_fraction). Ball patches over clutter and slivers on
+    borders cast a few dozen transport rays each; without this test they all counted as seeing
+    the sky, and every bake point and near gather hit on them cast sky rays (most of the sky rays
+    of the production room's bake under a grey world). Only when the test costs at most
+    SKY_TEST_SHARE of the rays already cast: under a large atlas's ray budget every patch casts
+    a few, and testing them all would cost more than the transport (they keep the sky)."""
     counts = np.bincount(pts.owner, minlength=len(cast))
     short = np.flatnonzero((cast < SKY_TEST_RAYS) & (counts > 0))
-    if len(short) == 0:
+    want = SKY_TEST_RAYS - cast[short]
+    if len(short) == 0 or want.sum() > SKY_TEST_SHARE * cast.sum():
         return escaped, cast
     order = np.argsort(pts.owner, kind="stable")  # each patch's receiver points, together
     first = np.searchsorted(pts.owner[order], short)
-    want = SKY_TEST_RAYS - cast[short]
     # spread each patch's extra rays over its receiver points, round-robin from its first
     owner = np.repeat(short, want)
     k = np.arange(len(owner)) - np.repeat(np.cumsum(want) - want, want)

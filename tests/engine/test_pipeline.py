@@ -8,6 +8,7 @@ import pytest
 from reference import analytic
 
 import scenes
+from ovrad_addon import transport
 from ovrad_addon.atlas import build_atlas
 from ovrad_addon.direct import direct_irradiance, triangle_normals
 from ovrad_addon.errors import OvradError
@@ -270,15 +271,19 @@ def test_a_sky_no_ray_escapes_to_is_left_out_of_the_direct_light():
     assert direct_light(problem, sky=sky).sky is sky
 
 
-def test_patches_that_cast_few_rays_are_tested_for_sky_and_a_closed_room_sees_none():
-    # under a small ray budget every patch casts fewer than SKY_TEST_RAYS transport rays: occlusion
-    # rays complete them, so a closed room's patches all tell they see no sky (they used to count
-    # as seeing it), and a lone floor's see nothing but sky
+def test_patches_that_cast_few_rays_are_tested_for_sky_and_a_closed_room_sees_none(monkeypatch):
+    # patches that cast fewer than SKY_TEST_RAYS transport rays get occlusion rays to complete
+    # them, so a closed room's patches all tell they see no sky (they used to count as seeing it),
+    # and a lone floor's see nothing but sky. Under a budget that leaves every patch short, the
+    # test would cost more than the transport: it is skipped and they keep the sky.
     budget = SolveSettings(max_rays=20_000, min_rays=0)
     closed = scenes.cube(inward=True)
-    problem = prepare(closed, build_atlas(closed, AtlasSettings(patch_count=200)), budget)
-    t = problem.transport
-    assert t.rays / len(problem.atlas) < SKY_TEST_RAYS
+    atlas = build_atlas(closed, AtlasSettings(patch_count=200))
+    t = prepare(closed, atlas, budget).transport
+    assert t.rays / len(atlas) < SKY_TEST_RAYS
+    assert np.all(t.sky_seen) and np.all(np.isnan(t.sky_fraction))
+    monkeypatch.setattr(transport, "SKY_TEST_SHARE", 100.0)
+    t = prepare(closed, atlas, budget).transport
     assert not np.any(t.sky_seen) and np.all(t.sky_fraction == 0.0)
     v, tr = scenes.plane(size=2.0, n=2)
     floor = Surfaces.from_arrays(v, tr, reflectance=[0.5] * 3)
