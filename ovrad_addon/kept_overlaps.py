@@ -31,7 +31,7 @@ from .surfaces import Surfaces
 
 # Raise when overlap.py integrates C differently (its rule, membership, contacts, clutter samples):
 # a C kept by an earlier version is then integrated again instead of used.
-RULE_VERSION = 1
+RULE_VERSION = 2  # 2: rows of repeated neighbourhoods copied (overlap.repeated_rows)
 
 
 @dataclass(frozen=True)
