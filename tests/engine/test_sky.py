@@ -101,3 +101,18 @@ def test_bad_sky_input_is_refused():
         Sky((1.0, -1.0, 0.0))
     with pytest.raises(OvradError):
         Sky(image=np.full((4, 8, 3), np.nan))
+
+
+def test_mean_radiance_is_the_solid_angle_mean():
+    # closed forms: a constant sky is its colour; a map bright above the horizon only is half of
+    # it (the hemispheres hold equal solid angles, whatever the rows' heights in the map); a band
+    # between elevations a and b holds (sin b - sin a) / 2 of the sphere
+    assert np.allclose(Sky((0.2, 0.4, 0.6)).mean_radiance(), [0.2, 0.4, 0.6])
+    h, w = 90, 8
+    img = np.zeros((h, w, 3))
+    img[h // 2 :] = [2.0, 4.0, 6.0]  # row 0 at the bottom: the upper half of the rows
+    np.testing.assert_allclose(Sky(image=img).mean_radiance(), [1.0, 2.0, 3.0], rtol=1e-12)
+    band = np.zeros((h, w, 3))
+    band[60:75] = 1.0  # elevations 30 to 60 degrees (2 degrees per row, from -90)
+    expect = (np.sin(np.radians(60)) - np.sin(np.radians(30))) / 2
+    np.testing.assert_allclose(Sky(image=band).mean_radiance(), expect, rtol=1e-12)
