@@ -348,8 +348,9 @@ def repeated_rows(atlas, index, ph: np.ndarray, pi: np.ndarray, start: np.ndarra
     with the same radii, shapes and square orientations, have the same row up to the rotation of
     the rule. A sheet's patches lie on a regular grid, so most interior patches of large flat faces
     repeat a few configurations: the Cornell box at 25 000 patches has 15 300 plain patches in 1 012
-    configurations. Each configuration is integrated once, on the member with the smallest
-    Atlas.random (a choice that does not depend on the patches' order or on other atlases).
+    configurations. Each configuration is integrated once per sheet, on the member with the
+    smallest Atlas.random: the choice depends on neither the patches' order nor other sheets, so a
+    row stays a function of its own sheet's patches (kept_overlaps.py relies on it).
     """
     n = len(atlas)
     con = contacts(atlas, index)
@@ -379,7 +380,8 @@ def repeated_rows(atlas, index, ph: np.ndarray, pi: np.ndarray, start: np.ndarra
         order = np.lexsort(keys[::-1], axis=1)
         keys = [np.take_along_axis(k, order, axis=1) for k in keys]
         nb = np.take_along_axis(pi[slot], order, axis=1)
-        _, group = np.unique(np.column_stack([size[rows], *keys]), axis=0, return_inverse=True)
+        sheet = np.asarray(atlas.sheet, np.int64)[rows]  # a row is copied within its own sheet only
+        _, group = np.unique(np.column_stack([sheet, size[rows], *keys]), axis=0, return_inverse=True)
         group = group.ravel()
         first = np.lexsort((rows, atlas.random[rows], group))  # by group, smallest random first
         lead = np.empty(group.max() + 1, np.int64)

@@ -559,7 +559,9 @@ def _at_points(
     if first_shot.shape != radiosity.shape:
         raise OvradError("the first shot does not match the radiosity: solve again")
     normals = triangle_normals(problem.surfaces, tri) * side[:, None]
-    seen = sky_patches(problem, light, radiosity - patch_emission(problem, light.emission_scale))
+    seen = None
+    if light.sky is not None:  # bake chunks come here for every point: nothing to do without a sky
+        seen = sky_patches(problem, light, radiosity - patch_emission(problem, light.emission_scale))
     sky_at = may_see_sky(a, seen)
     H = direct_irradiance(problem.surfaces, problem.index.rays, light, pts, normals, sky_at)[0]
     covered = np.asarray(a.sum(axis=1)).ravel() > 0
