@@ -170,7 +170,7 @@ def test_rows_of_repeated_configurations_are_copied_without_losing_accuracy():
     assert error(C_copy) < 1.05 * error(C_all)
     np.testing.assert_allclose(A_copy, A_all, rtol=0.01)
     np.testing.assert_allclose(np.asarray(C_copy.sum(axis=1)).ravel(), A_copy, rtol=1e-12, atol=1e-15)
-    # most rows were copied: the rows differ from their own integrals by the rule's turn only
+    # a good share of the rows was copied; they differ from their own integrals by the rule's turn only
     from ovrad_addon.overlap import neighbour_pairs, repeated_rows
 
     h, i = neighbour_pairs(atlas)
