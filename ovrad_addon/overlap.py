@@ -426,7 +426,9 @@ def overlap_matrix(
         for block in repeated_rows(atlas, index, ph, pi, start):
             keep = asked[block.member]
             if np.any(keep):
-                copies.append(RowCopies(*(a[keep] for a in fields_of(block))))
+                copies.append(
+                    RowCopies(block.member[keep], block.rep[keep], block.nb_member[keep], block.nb_rep[keep])
+                )
         if copies:
             copied = np.concatenate([c.member for c in copies])
             todo = np.ones(n, bool)
@@ -482,10 +484,6 @@ def overlap_matrix(
         C, support = _with_copies(C, support, copies, wanted)
     C.eliminate_zeros()
     return C, support
-
-
-def fields_of(block: RowCopies) -> tuple[np.ndarray, ...]:
-    return tuple(getattr(block, f.name) for f in fields(block))
 
 
 def _with_copies(C: csr_matrix, support: np.ndarray, copies: list[RowCopies], wanted: np.ndarray):

@@ -58,12 +58,15 @@ class Transport:
     points: ReceiverPoints
     rays: int
     escaped: int = -1  # -1: not counted
-    # (n,) bool: the patch may see the sky: some of its rays escaped, or it cast too few to tell
-    # (SKY_TEST_RAYS); None: unknown. Bake points and near gather hits skip sky rays elsewhere.
-    sky_seen: np.ndarray | None = None
     # (n,) the fraction of each patch's rays that escaped: its cosine-weighted share of the sky;
-    # NaN where it cast fewer than SKY_TEST_RAYS (too few to tell)
+    # NaN where it cast fewer than SKY_TEST_RAYS (too few to tell); None: unknown
     sky_fraction: np.ndarray | None = None
+
+    @property
+    def sky_seen(self) -> np.ndarray | None:
+        """(n,) bool: the patch may see the sky: some of its rays escaped, or it cast too few to
+        tell; None: unknown. Bake points and near gather hits skip sky rays elsewhere."""
+        return None if self.sky_fraction is None else ~(self.sky_fraction == 0)
 
     def received(self, cols: np.ndarray, unshot: np.ndarray) -> np.ndarray:
         """EC (n, 3): light landing in every test region when patches `cols` shoot unshot (len, 3)."""
@@ -217,9 +220,8 @@ def gather_transport(
     rho /= np.maximum(np.bincount(pts.owner, weights=pts.weight, minlength=n), 1e-300)[:, None]
     cast = np.bincount(pts.owner, minlength=n) * rays_per_point
     escaped, cast = _sky_test(index, pts, escaped, cast, offset, seed)
-    sky_seen = (escaped > 0) | (cast < SKY_TEST_RAYS)
     fraction = np.where(cast >= SKY_TEST_RAYS, escaped / np.maximum(cast, 1), np.nan)
-    return Transport(G, rho, pts, m * rays_per_point, int(escaped.sum()), sky_seen, fraction)
+    return Transport(G, rho, pts, m * rays_per_point, int(escaped.sum()), fraction)
 
 
 def _sky_test(index, pts: ReceiverPoints, escaped: np.ndarray, cast: np.ndarray, offset: float, seed: int):
