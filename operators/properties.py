@@ -195,6 +195,18 @@ class OVRAD_PG_settings(bpy.types.PropertyGroup):
         max=1 << 30,
         soft_max=1 << 26,
     )
+    cluster_angle: FloatProperty(
+        name="Far Clusters",
+        description=(
+            "Transport rays that land far away read the mean light of a cluster of patches whose "
+            "size is under this fraction of the distance, instead of each patch there: a faster "
+            "transport and a smaller matrix (0: every patch at every hit)"
+        ),
+        default=_SOLVE.cluster_angle,
+        min=0.0,
+        max=2.0,
+        step=10,
+    )
     bake_direct: BoolProperty(
         name="Sharp Direct Light",
         description=(
@@ -335,6 +347,7 @@ def solve_settings(props: OVRAD_PG_settings) -> SolveSettings:
         rays_per_point=props.rays_per_point,
         min_rays=props.min_rays,
         max_rays=props.max_rays,
+        cluster_angle=props.cluster_angle,
         gather_rays=props.gather_rays,
     )
 

@@ -22,12 +22,12 @@ from .solve_inputs import SolveInputs, light_key, read_inputs
 _CACHE: dict = {}
 
 
-def transport_key(settings) -> tuple[int, int, int]:
+def transport_key(settings) -> tuple:
     """The solve settings the transport depends on: a cached problem is reused only if they match."""
-    return settings.rays_per_point, settings.min_rays, settings.max_rays
+    return settings.rays_per_point, settings.min_rays, settings.max_rays, settings.cluster_angle
 
 
-def cached_problem(inputs: SolveInputs, transport: tuple[int, int, int] | None = None) -> Problem | None:
+def cached_problem(inputs: SolveInputs, transport: tuple | None = None) -> Problem | None:
     """The cached problem of these inputs (any ray counts if transport is None), with the
     current surfaces: their emission may differ, the engine reads it at each solve."""
     if _CACHE.get("key") != inputs.key:

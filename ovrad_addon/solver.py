@@ -219,8 +219,9 @@ def solve_direct(C, transport, emission: np.ndarray) -> np.ndarray:
     Cd = csc_matrix(C).toarray()
     Cd += np.diag(diagonal_shift(np.diag(Cd)))
     out = []
+    G = transport.matrix().toarray()
     for j in range(3):
-        R = transport.rho[:, [j]] * transport.geometric.toarray()
+        R = transport.rho[:, [j]] * G
         out.append(np.linalg.solve(Cd - R, csc_matrix(C) @ E[:, j]))
     return np.column_stack(out)
 

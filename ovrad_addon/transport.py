@@ -17,10 +17,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import coo_matrix, csc_matrix
+from scipy.sparse import coo_matrix, csc_matrix, csr_matrix
 
+from .clusters import Clusters
 from .geometry import tangent_frame
-from .overlap import alpha_at_hits, patch_quadrature
+from .overlap import alpha_at, patch_quadrature
 from .parallel import WORKERS, threaded
 
 
@@ -51,7 +52,12 @@ def receiver_points(atlas, index, q: int = 4, rings: int = 1) -> ReceiverPoints:
 class Transport:
     """R = diag(rho_c) G per colour channel; G (n x n, csc for column access), rho (n, 3) the
     reflectance of each patch (averaged over its support), the receiver points, rays cast, and
-    how many of them escaped (hit nothing: they saw the sky, if there is one)."""
+    how many of them escaped (hit nothing: they saw the sky, if there is one).
+
+    With clusters (gather_transport's `far`), G = geometric + links @ push: geometric holds the
+    near hits (alpha at each), links (n x clusters) the far hits per cluster, push (clusters x n,
+    csc) each cluster's mean-radiosity weights (clusters.py). Products go through the two
+    factors; G itself is never formed (matrix() does, for small scenes and tests)."""
 
     geometric: csc_matrix
     rho: np.ndarray
@@ -61,6 +67,8 @@ class Transport:
     # (n,) the fraction of each patch's rays that escaped: its cosine-weighted share of the sky;
     # NaN where it cast fewer than SKY_TEST_RAYS (too few to tell); None: unknown
     sky_fraction: np.ndarray | None = None
+    links: csr_matrix | None = None
+    push: csc_matrix | None = None
 
     @property
     def sky_seen(self) -> np.ndarray | None:
@@ -68,19 +76,37 @@ class Transport:
         tell; None: unknown. Bake points and near gather hits skip sky rays elsewhere."""
         return None if self.sky_fraction is None else ~(self.sky_fraction == 0)
 
+    @property
+    def entries(self) -> int:
+        """Stored entries of G's factors: what the transport holds in memory, 12 bytes each."""
+        far = 0 if self.links is None else self.links.nnz + self.push.nnz
+        return int(self.geometric.nnz + far)
+
+    def matrix(self) -> csc_matrix:
+        """G itself (n x n): geometric, plus links @ push with clusters."""
+        if self.links is None:
+            return self.geometric
+        return (self.geometric + self.links @ self.push).tocsc()
+
     def received(self, cols: np.ndarray, unshot: np.ndarray) -> np.ndarray:
         """EC (n, 3): light landing in every test region when patches `cols` shoot unshot (len, 3)."""
         G = self.geometric
         if len(cols) * 8 < G.shape[1]:
-            return self.rho * (G[:, cols] @ unshot)
+            out = G[:, cols] @ unshot
+            if self.links is not None:
+                out += self.links @ (self.push[:, cols] @ unshot)
+            return self.rho * out
         # many shooters: a product with all of G costs less than copying their columns out
         full = np.zeros((G.shape[1], unshot.shape[1]))
         full[cols] = unshot
-        return self.rho * (G @ full)
+        return self.apply(full)
 
     def apply(self, B: np.ndarray) -> np.ndarray:
         """R B (n, 3)."""
-        return self.rho * (self.geometric @ B)
+        out = self.geometric @ B
+        if self.links is not None:
+            out += self.links @ (self.push @ B)
+        return self.rho * out
 
     def test(self, irradiance: np.ndarray, reflectance: np.ndarray) -> np.ndarray:
         """Light reflected into each test region from an irradiance (m, 3) at the receiver points."""
@@ -154,6 +180,7 @@ def gather_transport(
     workers: int = WORKERS,
     min_rays: int = 0,
     max_rays: int = 0,
+    far: float = 0.0,
 ) -> Transport:
     """Build G and rho by hemisphere gathering from every patch's receiver points.
 
@@ -182,6 +209,7 @@ def gather_transport(
     _ = atlas.grid  # build the lookup once, before the threads need it
     offset = 1e-6 * index.surfaces.extent
     m = len(pts.owner)
+    clusters = Clusters.build(atlas, pts, far) if far > 0 else None
     step = max(1, chunk_rays // rays_per_point)
     starts = list(range(0, m, step))
 
@@ -191,28 +219,41 @@ def gather_transport(
         nrm = pts.normals[sl]
         dirs = cosine_directions(nrm, rays_per_point, rng).reshape(-1, 3)
         origins = np.repeat(pts.points[sl] + offset * nrm, rays_per_point, axis=0)
-        hits = alpha_at_hits(atlas, index, origins, dirs)
-        a = hits.alpha.tocoo()
-        owner = np.repeat(pts.owner[sl], rays_per_point)[hits.ray]
-        ray_w = np.repeat(pts.weight[sl] / rays_per_point, rays_per_point)[hits.ray]
+        t, tri = index.rays.closest_hit(origins, dirs, np.inf)
+        hit = np.flatnonzero(tri >= 0)
+        points = origins[hit] + t[hit, None] * dirs[hit]
+        tri, t = tri[hit], t[hit]
+        cos = np.einsum("ij,ij->i", dirs[hit], index.charts.normals[tri])
+        side = np.where(cos < 0, 1, -1)
+        owner = np.repeat(pts.owner[sl], rays_per_point)[hit]
+        ray_w = np.repeat(pts.weight[sl] / rays_per_point, rays_per_point)[hit]
+        far_part = None
+        if clusters is not None:
+            facing = index.charts.normals[tri] * side[:, None]
+            far, col = clusters.columns(points, index.sheet_of(tri, side), facing, t)
+            far_part = _summed(ray_w[far], owner[far], col, (n, clusters.count))
+            near = np.ones(len(hit), bool)
+            near[far] = False
+            points, tri, side, owner, ray_w = points[near], tri[near], side[near], owner[near], ray_w[near]
+        a = alpha_at(atlas, index, points, tri, side).tocoo()
         # summed per (h, k) within the chunk: memory follows G, not rays
-        part = coo_matrix((a.data * ray_w[a.row], (owner[a.row], a.col)), shape=(n, n)).tocsr().tocoo()
-        # int32 indices: G's assembly holds every chunk's entries at once
+        part = _summed(a.data * ray_w[a.row], owner[a.row], a.col, (n, n))
         out = np.ones(len(dirs), bool)
-        out[hits.ray] = False
+        out[hit] = False
         escaped = np.bincount(np.repeat(pts.owner[sl], rays_per_point)[out], minlength=n)
-        return part.row.astype(np.int32), part.col.astype(np.int32), part.data, escaped, sl.stop
+        return part, far_part, escaped, sl.stop
 
-    rows, cols, vals = [], [], []
+    near_parts, far_parts = [], []
     escaped = np.zeros(n, np.int64)
-    for r, c, v, out, done in threaded(chunk, len(starts), workers):
+    for part, far_part, out, done in threaded(chunk, len(starts), workers):
         escaped += out
-        rows.append(r)
-        cols.append(c)
-        vals.append(v)
+        near_parts.append(part)
+        if far_part is not None:
+            far_parts.append(far_part)
         if progress is not None:
             progress(done / m)  # on the calling thread: a cancel raised here stops the pool
-    G = coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)).tocsc()
+    G = _assembled(near_parts, (n, n)).tocsc()
+    links = _assembled(far_parts, (n, clusters.count)).tocsr() if clusters is not None else None
     rho = np.zeros((n, 3))
     # the albedo at the receiver points (a texture's, where there is one): rho_h its mean over D_h
     albedo = index.surfaces.reflectance_at(pts.triangle, pts.points)
@@ -221,7 +262,21 @@ def gather_transport(
     cast = np.bincount(pts.owner, minlength=n) * rays_per_point
     escaped, cast = _sky_test(index, pts, escaped, cast, offset, seed)
     fraction = np.where(cast >= SKY_TEST_RAYS, escaped / np.maximum(cast, 1), np.nan)
-    return Transport(G, rho, pts, m * rays_per_point, int(escaped.sum()), fraction)
+    push = clusters.push if clusters is not None else None
+    return Transport(G, rho, pts, m * rays_per_point, int(escaped.sum()), fraction, links, push)
+
+
+def _summed(values, rows, cols, shape) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Entries summed per (row, col), with int32 indices: G's assembly holds every chunk's at once."""
+    part = coo_matrix((values, (rows, cols)), shape=shape).tocsr().tocoo()
+    return part.row.astype(np.int32), part.col.astype(np.int32), part.data
+
+
+def _assembled(parts, shape) -> coo_matrix:
+    if not parts:
+        return coo_matrix(shape)
+    rows, cols, vals = zip(*parts, strict=True)
+    return coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=shape)
 
 
 def _sky_test(index, pts: ReceiverPoints, escaped: np.ndarray, cast: np.ndarray, offset: float, seed: int):

@@ -88,6 +88,11 @@ OPTIONS = [
     ("solve", "--max-rays", dict(type=int, help="transport rays cast at most, in all (0: no ceiling)")),
     (
         "solve",
+        "--cluster-angle",
+        dict(type=float, help="far transport hits read clusters under this size/distance (0: off)"),
+    ),
+    (
+        "solve",
         "--refine",
         dict(
             type=int,
@@ -152,6 +157,8 @@ def parse(argv: list[str]) -> argparse.Namespace:
         raise BatchError(f"--min-rays must be between 0 and {1 << 28}, got {args.min_rays}")
     if args.max_rays is not None and not 0 <= args.max_rays <= 1 << 30:
         raise BatchError(f"--max-rays must be between 0 and {1 << 30}, got {args.max_rays}")
+    if args.cluster_angle is not None and not 0 <= args.cluster_angle <= 2:
+        raise BatchError(f"--cluster-angle must be between 0 and 2, got {args.cluster_angle}")
     if args.patch_size is not None and not args.patch_size > 0:
         raise BatchError(f"--patch-size must be positive, got {args.patch_size}")
     if args.tolerance is not None and not 0 < args.tolerance < 1:
@@ -217,6 +224,7 @@ SOLVE_PROPS = {
     "rays_per_point": "rays_per_point",
     "min_rays": "min_rays",
     "max_rays": "max_rays",
+    "cluster_angle": "cluster_angle",
 }
 
 
@@ -435,6 +443,7 @@ def make_report(args, module, props, paths, receivers, atlases, stats, images, s
     report |= dict(overlap=round(props.overlap, 6), tolerance=float(f"{props.solve_tolerance:.6g}"))
     report |= dict(quality=props.quality.lower(), gather_rays=props.gather_rays, min_rays=props.min_rays)
     report |= dict(max_rays=props.max_rays, transport_rays=stats.get("transport_rays"))
+    report["cluster_angle"] = round(props.cluster_angle, 6)
     report["transport_escaped"] = stats.get("transport_escaped")
     report |= dict(target=args.target, quantity=args.quantity, images=images, not_baked=skipped)
     report["attribute"] = args.attribute if args.target == "vertex" else None

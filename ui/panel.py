@@ -105,6 +105,7 @@ class OVRAD_PT_advanced(_SubPanel, bpy.types.Panel):
         col.prop(props, "rays_per_point")
         col.prop(props, "min_rays")
         col.prop(props, "max_rays")
+        col.prop(props, "cluster_angle")
         layout.column(heading="Atlas").prop(props, "max_patches")
 
 

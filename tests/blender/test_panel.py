@@ -72,7 +72,15 @@ def test_sub_panels_sit_under_the_main_panel_with_the_expert_settings_collapsed(
     shown = []
     advanced = type("P", (), {"layout": Layout(shown)})()
     panel.OVRAD_PT_advanced.draw(advanced, bpy.context)
-    expert = ("solve_tolerance", "solve_rule", "rays_per_point", "min_rays", "max_rays", "max_patches")
+    expert = (
+        "solve_tolerance",
+        "solve_rule",
+        "rays_per_point",
+        "min_rays",
+        "max_rays",
+        "cluster_angle",
+        "max_patches",
+    )
     assert [name for kind, name in shown if kind == "prop"] == list(expert)
 
 

@@ -1,0 +1,151 @@
+"""Clusters of patches for the far transport: a ray that lands far away links to a cell of patches.
+
+A transport ray from a receiver point that lands at distance t on surface inside a cell of side L,
+with sqrt(3) L <= far t, sees that cell under a small angle: the rays landing in it are spread
+over it nearly as its area is (the density varies by O(far) across it). The light they bring
+back is then the cell's mean radiosity, sum_k P[c, k] B_k with P[c, k] the share of alpha_k's
+integral that lies in the cell, instead of alpha_k at every hit. That is hierarchical
+radiosity's link to a cluster (Hanrahan, Salzman, Aupperle 1991) on the ray-cast transport: the
+hit needs a cell key, not the alpha lookup (candidates, membership, beta, normalisation), and a
+row of G holds one entry per cluster it sees far away instead of one per patch.
+
+Cells are the sheets' own lookup grids (lookup.PatchGrid) coarsened by powers of two, from
+FIRST_LEVEL (cells about two patch radii wide) up to one cell per sheet, and split by the
+direction of the surface normal (NORMAL_BINS per cube face), so a cluster never mixes the two
+faces of a crease or both sides of a thin object, whose light differs and which rays see at
+different angles. Each hit takes the coarsest level that is far enough.
+
+Energy is conserved exactly: every row of P sums to 1, so a row of G closes as with alpha (the
+furnace stays exact), and a uniform radiosity is reproduced exactly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix, csc_matrix, diags, vstack
+
+FIRST_LEVEL = 2  # 4 lookup cells: about two patch radii (lookup.CELLS_PER_RADIUS)
+NORMAL_BINS = 3  # per cube face: normals within one cluster differ by at most ~40 degrees
+SQRT3 = np.sqrt(3.0)
+
+
+def normal_bin(normals: np.ndarray) -> np.ndarray:
+    """(m,) bin of each unit normal: its cube face (6) and a NORMAL_BINS^2 grid on that face."""
+    a = np.abs(normals)
+    axis = np.argmax(a, axis=1)
+    rows = np.arange(len(normals))
+    major = np.maximum(a[rows, axis], 1e-300)
+    face = 2 * axis + (normals[rows, axis] < 0)
+    u = normals[rows, (axis + 1) % 3] / major
+    v = normals[rows, (axis + 2) % 3] / major
+    iu = np.clip(np.floor((u + 1.0) * 0.5 * NORMAL_BINS), 0, NORMAL_BINS - 1).astype(np.int64)
+    iv = np.clip(np.floor((v + 1.0) * 0.5 * NORMAL_BINS), 0, NORMAL_BINS - 1).astype(np.int64)
+    return (face * NORMAL_BINS + iu) * NORMAL_BINS + iv
+
+
+BINS = 6 * NORMAL_BINS * NORMAL_BINS
+
+
+@dataclass(frozen=True)
+class Clusters:
+    """origin (S, 3), cell (S,) and dims (S, 3) of each sheet's finest grid (the patch lookup's);
+    top (S,) the level at which a sheet is one cell; keys[l] the sorted cell keys of level
+    FIRST_LEVEL + l that hold surface, first (levels + 1,) their column offsets; push (clusters x n,
+    csc) the mean-radiosity weights P; far the link criterion (cell diagonal over distance)."""
+
+    origin: np.ndarray
+    cell: np.ndarray
+    dims: np.ndarray
+    top: np.ndarray
+    keys: list
+    first: np.ndarray
+    push: csc_matrix
+    far: float
+
+    @classmethod
+    def build(cls, atlas, points, far: float) -> Clusters:
+        """Clusters over an atlas from its receiver points (transport.ReceiverPoints: owner,
+        points, normals on the patch's side, area weights summing to each support area).
+
+        P[c, k] is c_kk (alpha_k's integral, the atlas's effective area) times the share of D_k's
+        area that lies in cell c, normalised so each row sums to 1."""
+        grid = atlas.grid
+        origin, cell, dims = grid.origin, grid.cell, grid.dims
+        # the level at which (dims - 1) >> level is 0 on every axis: one cell holds the sheet
+        top = np.ceil(np.log2(np.max(dims - 1, axis=1) + 1.0)).astype(np.int64)
+        top = np.maximum(top, FIRST_LEVEL)
+        n = len(atlas)
+        mass = np.asarray(atlas.effective_area, np.float64)
+        if not np.all(mass > 0):
+            mass = np.asarray(atlas.support_area, np.float64)
+        area = np.bincount(points.owner, weights=points.weight, minlength=n)
+        w = points.weight * (mass / np.maximum(area, 1e-300))[points.owner]
+        sheets = np.asarray(atlas.sheet, np.int64)[points.owner]
+        ijk, ok = _cells(origin, cell, dims, points.points, sheets)
+        bins = normal_bin(points.normals)
+        keys, blocks, first = [], [], [0]
+        for level in range(FIRST_LEVEL, int(top.max(initial=FIRST_LEVEL)) + 1):
+            use = np.flatnonzero(ok & (top[sheets] >= level))
+            key = _key(dims, sheets[use], ijk[use], bins[use], level)
+            uniq, col = np.unique(key, return_inverse=True)
+            block = coo_matrix((w[use], (col, points.owner[use])), shape=(len(uniq), n)).tocsr()
+            block.sum_duplicates()
+            total = np.asarray(block.sum(axis=1)).ravel()
+            keys.append(uniq)
+            blocks.append(diags(1.0 / np.maximum(total, 1e-300)) @ block)
+            first.append(first[-1] + len(uniq))
+        push = vstack(blocks).tocsc() if blocks else csc_matrix((0, n))
+        return cls(origin, cell, dims, top, keys, np.asarray(first, np.int64), push, float(far))
+
+    @property
+    def count(self) -> int:
+        return int(self.first[-1])
+
+    def columns(self, points, sheets, normals, distance) -> tuple[np.ndarray, np.ndarray]:
+        """(far (k,) hit rows that link to a cluster, their cluster columns (k,)): hits at
+        points (m, 3) on sheets (m,), normals (m, 3) facing the ray, at distance (m,) from where
+        it left. A hit too near for the first level, off every grid, or on a cell no receiver
+        point lies in stays with alpha (not in far)."""
+        sheets = np.asarray(sheets, np.int64)
+        ok = (sheets >= 0) & (sheets < len(self.cell))
+        s = np.where(ok, sheets, 0)
+        with np.errstate(divide="ignore"):
+            want = np.floor(np.log2(self.far * np.asarray(distance) / (SQRT3 * self.cell[s])))
+        ok &= want >= FIRST_LEVEL
+        level = np.minimum(np.where(ok, want, FIRST_LEVEL), self.top[s]).astype(np.int64)
+        ijk, inside = _cells(self.origin, self.cell, self.dims, points, s)
+        ok &= inside
+        bins = normal_bin(normals)
+        rows, cols = [], []
+        for lv in np.unique(level[ok]):
+            at = np.flatnonzero(ok & (level == lv))
+            key = _key(self.dims, s[at], ijk[at], bins[at], int(lv))
+            table = self.keys[lv - FIRST_LEVEL]
+            pos = np.minimum(np.searchsorted(table, key), max(len(table) - 1, 0))
+            found = table[pos] == key if len(table) else np.zeros(len(at), bool)
+            rows.append(at[found])
+            cols.append(self.first[lv - FIRST_LEVEL] + pos[found])
+        if not rows:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        return np.concatenate(rows), np.concatenate(cols)
+
+
+def _cells(origin, cell, dims, points, sheets) -> tuple[np.ndarray, np.ndarray]:
+    """Finest-level integer cell (m, 3) of each point in its sheet's grid, and whether it is in it."""
+    ijk = np.floor((np.asarray(points, np.float64) - origin[sheets]) / cell[sheets, None])
+    inside = np.all((ijk >= 0) & (ijk < dims[sheets]), axis=1)
+    return np.where(inside[:, None], ijk, 0).astype(np.int64), inside
+
+
+def _key(dims, sheets, ijk, bins, level: int) -> np.ndarray:
+    """Keys of cells at `level` (the finest grid's cells merged 2^level to a side) with the normal
+    bin: unique over sheets, since each sheet's cells get their own range."""
+    d = ((dims - 1) >> level) + 1
+    size = np.prod(d, axis=1)
+    offset = np.concatenate([[0], np.cumsum(size)[:-1]])
+    c = ijk >> level
+    dd = d[sheets]
+    lin = offset[sheets] + c[:, 0] + dd[:, 0] * (c[:, 1] + dd[:, 1] * c[:, 2])
+    return lin * BINS + bins
