@@ -2,7 +2,8 @@
 
 Run (about 10 minutes for the defaults on 2 cores):
     scripts/blender -b --python-exit-code 1 -P benchmarks/scale_bench.py -- \
-        [--scene cornell lamps_doorway production] [--counts 2000 25000 100000] [--name scale]
+        [--scene cornell lamps_doorway production] [--counts 2000 25000 100000] [--name scale] \
+        [--batch-args "--cluster-angle 0"]
 
 Each bake runs in a Blender process of its own (so its memory is its own, not what earlier bakes
 left behind) through the batch command's own code (scripts/ovrad_batch.py, `--input scene.blend
@@ -22,6 +23,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import shlex
 import subprocess
 import sys
 import tempfile
@@ -68,11 +70,11 @@ class Production:
         return float("nan"), float("nan")
 
 
-def bake(sc, count: int, folder: Path) -> dict:
+def bake(sc, count: int, folder: Path, extra: str = "") -> dict:
     batch = speed_vs_error.batch_module()
     out, report = folder / f"{sc.name}_{count}.blend", folder / f"{sc.name}_{count}.json"
     args = ["--input", str(sc.blend), "--output", str(out), "--report", str(report)]
-    rep = batch.run(batch.parse([*args, "--patch-count", str(count)]))
+    rep = batch.run(batch.parse([*args, "--patch-count", str(count), *shlex.split(extra)]))
     s, mb, inner = rep["seconds"], rep["peak_memory_mb"], rep["solve_peak_memory_mb"]
     seconds = s["generate"] + s["solve"] + s["bake"]
     err, _ = sc.score(rep["attribute"])
@@ -87,16 +89,17 @@ def bake(sc, count: int, folder: Path) -> dict:
     )
 
 
-def one(scene: str, count: int) -> None:
+def one(scene: str, count: int, extra: str = "") -> None:
     """One bake in this process; its row as one JSON line."""
     folder = Path(tempfile.mkdtemp(prefix="ovrad-scale-"))
     sc = Production(folder) if scene == "production" else speed_vs_error.Scene(scene, folder)
-    print("scale_bench row " + json.dumps(bake(sc, count, folder)), flush=True)
+    print("scale_bench row " + json.dumps(bake(sc, count, folder, extra)), flush=True)
 
 
-def run_one(scene: str, count: int) -> dict:
+def run_one(scene: str, count: int, extra: str = "") -> dict:
     cmd = [str(ROOT / "scripts" / "blender"), "-b", "--python-exit-code", "1", "-P", __file__, "--"]
-    proc = subprocess.run([*cmd, "--one", scene, str(count)], capture_output=True, text=True)
+    cmd += ["--one", scene, str(count), "--batch-args", extra]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
     rows = [ln for ln in proc.stdout.splitlines() if ln.startswith("scale_bench row ")]
     if proc.returncode != 0 or not rows:
         raise SystemExit(
@@ -141,17 +144,18 @@ def main(argv: list[str]) -> int:
     p.add_argument("--scene", nargs="+", choices=scenes, default=["cornell"])
     p.add_argument("--counts", type=int, nargs="+", default=[2000, 25000, 100000])
     p.add_argument("--name", default="scale", help="results file name without .csv")
+    p.add_argument("--batch-args", default="", help="extra batch options, one string")
     p.add_argument("--one", nargs=2, help=argparse.SUPPRESS)
     a = p.parse_args(argv)
     if a.one:
-        one(a.one[0], int(a.one[1]))
+        one(a.one[0], int(a.one[1]), a.batch_args)
         return 0
     RESULTS.mkdir(exist_ok=True)
     out = RESULTS / f"{a.name}.csv"
     rows: list[dict] = []
     for name in a.scene:
         for count in a.counts:
-            rows.append(run_one(name, count))
+            rows.append(run_one(name, count, a.batch_args))
             with open(out, "w", newline="") as fh:  # after every bake: a partial run keeps its rows
                 w = csv.DictWriter(fh, FIELDS)
                 w.writeheader()

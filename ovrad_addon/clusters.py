@@ -85,16 +85,28 @@ class Clusters:
         sheets = np.asarray(atlas.sheet, np.int64)[points.owner]
         ijk, ok = _cells(origin, cell, dims, points.points, sheets)
         bins = normal_bin(points.normals)
+        # the first level from the points; each coarser one from the cells of the level below
+        # (one representative point per cell: cells nest), so every level after the first
+        # costs what its cells do, not what the points do
+        use = np.flatnonzero(ok)
+        key = _key(dims, sheets[use], ijk[use], bins[use], FIRST_LEVEL)
+        uniq, rep, col = np.unique(key, return_index=True, return_inverse=True)
+        mass_of = coo_matrix((w[use], (col.ravel(), points.owner[use])), shape=(len(uniq), n)).tocsr()
+        at = use[rep]  # a point of each cell: its sheet, finest cell and normal bin
         keys, blocks, first = [], [], [0]
         for level in range(FIRST_LEVEL, int(top.max(initial=FIRST_LEVEL)) + 1):
-            use = np.flatnonzero(ok & (top[sheets] >= level))
-            key = _key(dims, sheets[use], ijk[use], bins[use], level)
-            uniq, col = np.unique(key, return_inverse=True)
-            block = coo_matrix((w[use], (col, points.owner[use])), shape=(len(uniq), n)).tocsr()
-            block.sum_duplicates()
-            total = np.asarray(block.sum(axis=1)).ravel()
+            if level > FIRST_LEVEL:
+                alive = top[sheets[at]] >= level  # sheets already one cell stop at their top
+                key = _key(dims, sheets[at[alive]], ijk[at[alive]], bins[at[alive]], level)
+                uniq, rep, col = np.unique(key, return_index=True, return_inverse=True)
+                k = len(col)
+                parent = coo_matrix((np.ones(k), (col.ravel(), np.arange(k))), (len(uniq), k))
+                mass_of = (parent @ mass_of[alive]).tocsr()
+                at = at[alive][rep]
+            mass_of.sum_duplicates()
+            total = np.asarray(mass_of.sum(axis=1)).ravel()
             keys.append(uniq)
-            blocks.append(diags(1.0 / np.maximum(total, 1e-300)) @ block)
+            blocks.append(diags(1.0 / np.maximum(total, 1e-300)) @ mass_of)
             first.append(first[-1] + len(uniq))
         push = vstack(blocks).tocsc() if blocks else csc_matrix((0, n))
         return cls(origin, cell, dims, top, keys, np.asarray(first, np.int64), push, float(far))

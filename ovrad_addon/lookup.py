@@ -59,9 +59,17 @@ class PatchGrid:
         size = np.prod(dims, axis=1)
         offset = np.concatenate([[0], np.cumsum(size)[:-1]]).astype(np.int64)
         keys, owners = [], []
-        # cells of each patch's bounding box, tested against its ball and its plane slab
-        lo = np.floor((c - br[:, None] - origin[sheet]) / cell[sheet, None]).astype(np.int64)
-        hi = np.floor((c + br[:, None] - origin[sheet]) / cell[sheet, None]).astype(np.int64)
+        # cells of each patch's box, tested against its ball and its plane slab. The box holds
+        # the disk of radius br in the patch's plane thickened by the slab: along axis a it
+        # reaches br sqrt(1 - n_a^2) + thickness |n_a| (at most br: a ball patch's own ball), so a
+        # wall's patch spans one or two cells across its plane instead of its diameter's worth
+        na = np.abs(atlas.normals)
+        reach = np.minimum(
+            br[:, None],
+            br[:, None] * np.sqrt(np.clip(1.0 - na * na, 0.0, 1.0)) + atlas.thickness[:, None] * na,
+        )
+        lo = np.floor((c - reach - origin[sheet]) / cell[sheet, None]).astype(np.int64)
+        hi = np.floor((c + reach - origin[sheet]) / cell[sheet, None]).astype(np.int64)
         ext = hi - lo + 1
         count = np.prod(ext, axis=1)
         bounds = np.searchsorted(np.cumsum(count), np.arange(0, int(count.sum()), _MAX_ENTRIES), "right")
