@@ -91,12 +91,14 @@ class SolveSettings:
     sky_samples: int = 256
     bake_sky_samples: int = 1024
     # Far transport hits link to clusters of patches (clusters.py) whose cell diagonal is under
-    # this many times the hit's distance; 0: alpha at every hit. The real-scenes set (every vertex
-    # against Cycles, benchmarks/real_scenes_bench.py) at 0 / 0.25 / 0.5: doorway 1.62 / 1.51 /
-    # 2.06 %, lamps_doorway 1.76 / 1.68 / 1.88 %, the other seven within 0.03 points at 0.25 (a
-    # cluster's mean is less noisy than alpha at a few hits; at 0.5 clusters seen near a receiver's
-    # horizon or partly hidden take light from where its rays do not land)
-    cluster_angle: float = 0.25
+    # this many times the hit's distance; 0: alpha at every hit. Measured at every vertex against
+    # Cycles, angle 0 / 0.125 / 0.25: at 100 k patches lamps_doorway 1.76 / 1.74 / 1.83 %, the
+    # Cornell box 1.65 / 1.64 / 1.64 %, transport 15.1 / 11.8 / 11.6 s and 16.5 / 11.4 / 11.4 s
+    # (scale_bench.py); at 2 000 patches (real_scenes_bench.py) doorway 1.62 / 1.63 / 1.51 %,
+    # lamps_doorway 1.76 / 1.77 / 1.68 %, the other seven within 0.03 points. At 0.5 the doorway
+    # went to 2.06 %: a large cluster seen near a receiver's horizon, or partly hidden, gives light
+    # from where its rays do not land.
+    cluster_angle: float = 0.125
 
     def __post_init__(self) -> None:
         if not (0 < self.tolerance < 1):
