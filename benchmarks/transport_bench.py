@@ -107,7 +107,7 @@ def one(count: int, beta: str, scene: str) -> dict:
         "bake_20k_s": round(t_bake, 2),
         "total_s": round(t_atlas + sum(problem.seconds.values()) + t_solve + t_bake, 2),
         "transport_rays": T.rays,
-        "G_entries": int(T.geometric.nnz),
+        "G_entries": T.entries,  # near G, and the cluster links and their weights
         "C_entries": int(problem.C.nnz),
         "steps": len(state.history) - 1,
         "error_vs_converged": f"{err:.2e}",
