@@ -365,6 +365,9 @@ def _small_charts(index: SurfaceIndex, settings: AtlasSettings) -> np.ndarray:
     return clutter_mod.small_charts(index.charts.chart_areas, spacing) & np.isfinite(spacing)
 
 
+COUNT_TOLERANCE = 0.1  # a patch count this close to the target needs no second correction
+
+
 def _sheet_spacing(index: SurfaceIndex, settings: AtlasSettings) -> np.ndarray:
     """Grid spacing per sheet: from patch_size, or chosen so the whole scene gets about patch_count."""
     s = index.surfaces
@@ -503,9 +506,26 @@ def build_atlas_and_overlaps(
     report_stage(progress, 0.1, "placing patches")
     placed, total = _place_all(index, settings, spacing)
     if settings.patch_size is None and total <= settings.max_patches:
-        # Boundary cells add to the count; one correction brings it near the target.
-        spacing = spacing * np.sqrt(total / settings.patch_count)
-        placed, total = _place_all(index, settings, spacing)
+        # Boundary cells add to the count; one correction (count ~ 1 / spacing^2) brings it near
+        # the target. Where it does not (many small charts, whose border patches make the count
+        # go as 1 / spacing: the production room got 33 228 patches for 25 000), up to two more,
+        # each with the exponent the last two placements showed; the closest count is kept.
+        best, k = None, 2.0
+        for step in range(3):
+            if step and abs(total / settings.patch_count - 1.0) <= COUNT_TOLERANCE:
+                break
+            before = (spacing, total)
+            spacing = spacing * (total / settings.patch_count) ** (1.0 / k)
+            placed, total = _place_all(index, settings, spacing)
+            closer = best is None or abs(total - settings.patch_count) < abs(best[1] - settings.patch_count)
+            if step == 0 or (closer and total <= settings.max_patches):
+                best = (placed, total)
+            if total > settings.max_patches or total <= 0:
+                break
+            ratio = float(np.max(spacing / before[0]))
+            if ratio != 1.0 and total != before[1]:
+                k = float(np.clip(np.log(before[1] / total) / np.log(ratio), 0.5, 3.0))
+        placed, total = best
     if total > settings.max_patches:
         raise _too_many(total, settings)
     sheet = np.concatenate([np.full(len(p.radii), k) for k, p in enumerate(placed)])

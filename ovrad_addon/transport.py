@@ -191,6 +191,9 @@ def gather_transport(
     rule (q halved, down to 2, while fewer than MIN_POINT_RAYS rays per point would be left) and
     fewer rays per point, down to one, so the time and G's entries (at most a few per ray) stop
     growing with the patch count once it is reached: G's memory is bounded by the budget.
+    far: hits farther than 1/far times the diagonal of a cluster of patches there (clusters.py)
+    add to that cluster's link instead of taking alpha (0: alpha at every hit); G is then
+    geometric + links @ push (Transport). A cluster link holds what many alpha entries did.
 
     Receiver points go in chunks of about chunk_rays rays, each chunk cast and resolved (alpha
     at the hits, summed per (h, k)) on one of `workers` threads: embree and most numpy work
@@ -230,10 +233,10 @@ def gather_transport(
         far_part = None
         if clusters is not None:
             facing = index.charts.normals[tri] * side[:, None]
-            far, col = clusters.columns(points, index.sheet_of(tri, side), facing, t)
-            far_part = _summed(ray_w[far], owner[far], col, (n, clusters.count))
+            linked, col = clusters.columns(points, index.sheet_of(tri, side), facing, t)
+            far_part = _summed(ray_w[linked], owner[linked], col, (n, clusters.count))
             near = np.ones(len(hit), bool)
-            near[far] = False
+            near[linked] = False
             points, tri, side, owner, ray_w = points[near], tri[near], side[near], owner[near], ray_w[near]
         a = alpha_at(atlas, index, points, tri, side).tocoo()
         # summed per (h, k) within the chunk: memory follows G, not rays
