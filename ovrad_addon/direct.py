@@ -126,27 +126,29 @@ def emitter_irradiance(
     step = max(1, _CHUNK_RAYS // k)
     for r0 in range(0, len(pts), step):
         rs = np.arange(r0, min(len(pts), r0 + step))
-        v = src.points[None, :, :] - pts[rs, None]
+        P, N = pts[rs], nrm[rs]
+        v = src.points[None, :, :] - P[:, None]
         d2 = np.einsum("rsk,rsk->rs", v, v)
         d = np.sqrt(np.maximum(d2, 1e-300))
         omega = v / d[..., None]
-        cos_r = np.einsum("rsk,rk->rs", omega, nrm[rs])
-        cos_s = np.abs(np.einsum("rsk,sk->rs", omega, src.normals))
-        r_i, s_i = np.nonzero((cos_r > 0) & (cos_s > 0) & (d2 > 0))
+        cos_r = np.einsum("rsk,rk->rs", omega, N)
+        facing = np.einsum("rsk,sk->rs", omega, src.normals)  # its sign: which side of the emitter
+        cos_s = np.abs(facing)
+        pair = (cos_r > 0) & (cos_s > 0) & (d2 > 0)
         # From just off the receiver to just off the emitter on the receiver's side: a ray aimed
         # at the sample itself would meet the emitter's own face short of it at grazing angles.
-        w = omega[r_i, s_i]
-        origin = shadow_origin(pts[rs[r_i]], nrm[rs[r_i]], w, eps)
-        towards = -np.sign(np.einsum("ij,ij->i", w, src.normals[s_i]))
-        seg = src.points[s_i] + (eps * towards)[:, None] * src.normals[s_i] - origin
-        length = np.linalg.norm(seg, axis=1)
+        # Built on the whole (points, samples) grid by broadcasting, then taken at the pairs once.
+        origin = shadow_origin(P[:, None], N[:, None], omega, eps)
+        seg = src.points[None] - (eps * np.sign(facing))[..., None] * src.normals[None] - origin
+        origin, seg = origin[pair], seg[pair]
+        length = np.sqrt(np.einsum("ij,ij->i", seg, seg))
         blocked = rays.occluded(origin, seg / length[:, None], length * (1 - 1e-6))
-        cast += len(r_i)
-        r_i, s_i = r_i[~blocked], s_i[~blocked]
+        cast += len(seg)
+        lit = np.zeros(pair.shape, bool)
+        lit[pair] = ~blocked
         # the unblocked pairs' geometric terms as a dense (points, samples) matrix: one product sums
         # them per point (np.add.at per pair was a fifth of a production room's near-field time)
-        g = np.zeros(cos_r.shape)
-        g[r_i, s_i] = cos_r[r_i, s_i] * cos_s[r_i, s_i] / d2[r_i, s_i] * src.area[s_i]
+        g = np.where(lit, cos_r * cos_s / np.maximum(d2, 1e-300) * src.area[None, :], 0.0)
         H[rs] += g @ src.radiance
     return H, cast
 
