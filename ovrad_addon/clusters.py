@@ -125,19 +125,26 @@ class Clusters:
         s = np.where(ok, sheets, 0)
         with np.errstate(divide="ignore"):
             want = np.floor(np.log2(self.far * np.asarray(distance) / (SQRT3 * self.cell[s])))
-        ok &= want >= FIRST_LEVEL
-        level = np.minimum(np.where(ok, want, FIRST_LEVEL), self.top[s]).astype(np.int64)
-        ijk, inside = _cells(self.origin, self.cell, self.dims, points, s)
-        ok &= inside
-        bins = normal_bin(normals)
+        at = np.flatnonzero(ok & (want >= FIRST_LEVEL))  # far enough for some level
+        s = s[at]
+        ijk, inside = _cells(self.origin, self.cell, self.dims, np.asarray(points)[at], s)
+        at, s, ijk = at[inside], s[inside], ijk[inside]
+        bins = normal_bin(np.asarray(normals)[at])
+        level = np.minimum(want[at], self.top[s]).astype(np.int64)
+        # one pass per level present, the hits sorted by level (stable: in their order within it)
+        order = np.argsort(level, kind="stable")
+        lev = level[order]
+        starts = np.concatenate([[0], np.flatnonzero(np.diff(lev)) + 1])
         rows, cols = [], []
-        for lv in np.unique(level[ok]):
-            at = np.flatnonzero(ok & (level == lv))
-            key = _key(self.dims, s[at], ijk[at], bins[at], int(lv))
+        for a, b in zip(starts, [*starts[1:], len(lev)], strict=True):
+            if a == b:
+                continue  # no hit far enough
+            group, lv = order[a:b], int(lev[a])
+            key = _key(self.dims, s[group], ijk[group], bins[group], lv)
             table = self.keys[lv - FIRST_LEVEL]
             pos = np.minimum(np.searchsorted(table, key), max(len(table) - 1, 0))
-            found = table[pos] == key if len(table) else np.zeros(len(at), bool)
-            rows.append(at[found])
+            found = table[pos] == key if len(table) else np.zeros(len(group), bool)
+            rows.append(at[group[found]])
             cols.append(self.first[lv - FIRST_LEVEL] + pos[found])
         if not rows:
             return np.zeros(0, np.int64), np.zeros(0, np.int64)
