@@ -89,14 +89,15 @@ def test_options_reach_atlas_solve_and_bake(ovrad, run_blender, tmp_path):
     out, report = tmp_path / "o.blend", tmp_path / "r.json"
     proc = batch(run_blender, CORNELL, "--patch-size", "0.12", "--overlap", "1.5", "--beta", "box",
                  "--solver", "exact", "--tolerance", "0.01", "--attribute", "light", "--domain", "CORNER",
-                 "--quantity", "irradiance", "--min-rays", "0", "--rays-per-point", "8",
-                 "--max-rays", "60000", "--output", out, "--report", report)  # fmt: skip
+                 "--quantity", "irradiance", "--min-rays", "0", "--rays-per-point", "8", "--max-rays",
+                 "60000", "--cluster-angle", "0.5", "--output", out, "--report", report)  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     r = json.loads(report.read_text())
     assert (r["beta"], r["solver"], r["overlap"], r["quantity"]) == ("box", "exact", 1.5, "irradiance")
     assert r["rays"] < 1_000_000  # no 4.2 M-ray floor: 8 rays per point, plus the shadow rays
     # ... and at most 60 000 transport rays: fewer rays per point (the shadow rays come on top)
     assert r["max_rays"] == 60_000 and 15_000 <= r["transport_rays"] <= 60_000
+    assert r["cluster_angle"] == 0.5
     assert r["tolerance"] == pytest.approx(0.01) and r["unshot_fraction"] <= 0.01
     assert 120 <= r["patches"] <= 260  # 0.12 m patches on about 1.9 m^2
     attrs, _ = inspect(run_blender, out)
@@ -211,6 +212,7 @@ def test_in_place_overwrites_only_when_asked(ovrad, run_blender, tmp_path):
         (["--output", "{tmp}/o.blend", "--refine", "9"], "--refine must be between 0 and 4 passes"),
         (["--output", "{tmp}/o.blend", "--min-rays", "-5"], "--min-rays must be between 0 and"),
         (["--output", "{tmp}/o.blend", "--max-rays", "-1"], "--max-rays must be between 0 and"),
+        (["--output", "{tmp}/o.blend", "--cluster-angle", "3"], "--cluster-angle must be between 0 and 2"),
         (["--output", "{tmp}/o.blend", "--gather-rays", "-1"], "--gather-rays must be at least 0"),
         (["--output", "{tmp}/o.blend", "--gather-rays", "99999"], "--gather-rays must be between 0 and"),
         (["--output", "{tmp}/o.blend", "--quality", "best"], "argument --quality: invalid choice: 'best'"),
