@@ -26,6 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.sparse import coo_matrix, csc_matrix, diags, vstack
 
+from .lookup import PatchGrid
+
 FIRST_LEVEL = 2  # 4 lookup cells: about two patch radii (lookup.CELLS_PER_RADIUS)
 NORMAL_BINS = 3  # per cube face: normals within one cluster differ by at most ~40 degrees
 SQRT3 = np.sqrt(3.0)
@@ -50,14 +52,12 @@ BINS = 6 * NORMAL_BINS * NORMAL_BINS
 
 @dataclass(frozen=True)
 class Clusters:
-    """origin (S, 3), cell (S,) and dims (S, 3) of each sheet's finest grid (the patch lookup's);
-    top (S,) the level at which a sheet is one cell; keys[l] the sorted cell keys of level
-    FIRST_LEVEL + l that hold surface, first (levels + 1,) their column offsets; push (clusters x n,
-    csc) the mean-radiosity weights P; far the link criterion (cell diagonal over distance)."""
+    """grid: the patch lookup's (lookup.PatchGrid), whose cells are the finest level; top (S,)
+    the level at which a sheet is one cell; keys[l] the sorted cell keys of level FIRST_LEVEL + l
+    that hold surface, first (levels + 1,) their column offsets; push (clusters x n, csc) the
+    mean-radiosity weights P; far the link criterion (cell diagonal over distance)."""
 
-    origin: np.ndarray
-    cell: np.ndarray
-    dims: np.ndarray
+    grid: PatchGrid
     top: np.ndarray
     keys: list
     first: np.ndarray
@@ -72,7 +72,7 @@ class Clusters:
         P[c, k] is c_kk (alpha_k's integral, the atlas's effective area) times the share of D_k's
         area that lies in cell c, normalised so each row sums to 1."""
         grid = atlas.grid
-        origin, cell, dims = grid.origin, grid.cell, grid.dims
+        dims = grid.dims
         # the level at which (dims - 1) >> level is 0 on every axis: one cell holds the sheet
         top = np.ceil(np.log2(np.max(dims - 1, axis=1) + 1.0)).astype(np.int64)
         top = np.maximum(top, FIRST_LEVEL)
@@ -83,7 +83,7 @@ class Clusters:
         area = np.bincount(points.owner, weights=points.weight, minlength=n)
         w = points.weight * (mass / np.maximum(area, 1e-300))[points.owner]
         sheets = np.asarray(atlas.sheet, np.int64)[points.owner]
-        ijk, ok = _cells(origin, cell, dims, points.points, sheets)
+        ijk, ok = grid.cells(points.points, sheets)
         bins = normal_bin(points.normals)
         # the first level from the points; each coarser one from the cells of the level below
         # (one representative point per cell: cells nest), so every level after the first
@@ -109,7 +109,7 @@ class Clusters:
             blocks.append(diags(1.0 / np.maximum(total, 1e-300)) @ mass_of)
             first.append(first[-1] + len(uniq))
         push = vstack(blocks).tocsc() if blocks else csc_matrix((0, n))
-        return cls(origin, cell, dims, top, keys, np.asarray(first, np.int64), push, float(far))
+        return cls(grid, top, keys, np.asarray(first, np.int64), push, float(far))
 
     @property
     def count(self) -> int:
@@ -121,13 +121,13 @@ class Clusters:
         it left. A hit too near for the first level, off every grid, or on a cell no receiver
         point lies in stays with alpha (not in far)."""
         sheets = np.asarray(sheets, np.int64)
-        ok = (sheets >= 0) & (sheets < len(self.cell))
+        ok = (sheets >= 0) & (sheets < len(self.grid.cell))
         s = np.where(ok, sheets, 0)
         with np.errstate(divide="ignore"):
-            want = np.floor(np.log2(self.far * np.asarray(distance) / (SQRT3 * self.cell[s])))
+            want = np.floor(np.log2(self.far * np.asarray(distance) / (SQRT3 * self.grid.cell[s])))
         at = np.flatnonzero(ok & (want >= FIRST_LEVEL))  # far enough for some level
         s = s[at]
-        ijk, inside = _cells(self.origin, self.cell, self.dims, np.asarray(points)[at], s)
+        ijk, inside = self.grid.cells(np.asarray(points)[at], s)
         at, s, ijk = at[inside], s[inside], ijk[inside]
         bins = normal_bin(np.asarray(normals)[at])
         level = np.minimum(want[at], self.top[s]).astype(np.int64)
@@ -140,7 +140,7 @@ class Clusters:
             if a == b:
                 continue  # no hit far enough
             group, lv = order[a:b], int(lev[a])
-            key = _key(self.dims, s[group], ijk[group], bins[group], lv)
+            key = _key(self.grid.dims, s[group], ijk[group], bins[group], lv)
             table = self.keys[lv - FIRST_LEVEL]
             pos = np.minimum(np.searchsorted(table, key), max(len(table) - 1, 0))
             found = table[pos] == key if len(table) else np.zeros(len(group), bool)
@@ -149,13 +149,6 @@ class Clusters:
         if not rows:
             return np.zeros(0, np.int64), np.zeros(0, np.int64)
         return np.concatenate(rows), np.concatenate(cols)
-
-
-def _cells(origin, cell, dims, points, sheets) -> tuple[np.ndarray, np.ndarray]:
-    """Finest-level integer cell (m, 3) of each point in its sheet's grid, and whether it is in it."""
-    ijk = np.floor((np.asarray(points, np.float64) - origin[sheets]) / cell[sheets, None])
-    inside = np.all((ijk >= 0) & (ijk < dims[sheets]), axis=1)
-    return np.where(inside[:, None], ijk, 0).astype(np.int64), inside
 
 
 def _key(dims, sheets, ijk, bins, level: int) -> np.ndarray:

@@ -106,16 +106,22 @@ class PatchGrid:
         start = np.concatenate([first, [len(key)]]).astype(np.int64)
         return cls(origin, cell, dims, offset, uniq, start, owner)
 
+    def cells(self, points: np.ndarray, sheets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Integer cell (m, 3) of each point in its sheet's grid (0 where it is not in it), and
+        whether it is (m,) bool; sheets (m,) must be valid sheet indices."""
+        pts = np.asarray(points, np.float64).reshape(-1, 3)
+        ijk = np.floor((pts - self.origin[sheets]) / self.cell[sheets, None])
+        inside = np.all((ijk >= 0) & (ijk < self.dims[sheets]), axis=1)
+        return np.where(inside[:, None], ijk, 0).astype(np.int64), inside
+
     def candidates(self, points: np.ndarray, sheets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(row, patch) pairs: the patches of each point's sheet registered in its cell."""
-        pts = np.asarray(points, np.float64).reshape(-1, 3)
         sheets = np.asarray(sheets, np.int64)
         ok = (sheets >= 0) & (sheets < len(self.cell))
         s = np.where(ok, sheets, 0)
-        ijk = np.floor((pts - self.origin[s]) / self.cell[s, None])
+        ijk, inside = self.cells(points, s)
+        ok &= inside
         d = self.dims[s]
-        ok &= np.all((ijk >= 0) & (ijk < d), axis=1)
-        ijk = np.where(ok[:, None], ijk, 0).astype(np.int64)
         key = self.offset[s] + ijk[:, 0] + d[:, 0] * (ijk[:, 1] + d[:, 1] * ijk[:, 2])
         pos = np.minimum(np.searchsorted(self.keys, key), max(len(self.keys) - 1, 0))
         if len(self.keys):

@@ -75,7 +75,7 @@ def test_far_hits_link_only_to_clusters_small_for_their_distance():
         spread = np.linalg.norm(atlas.centers[members] - pts[j], axis=1).max()
         assert spread <= angle * dist[j] + reach + 1e-12
     near = np.setdiff1d(np.arange(len(pts)), far)
-    cell = cl.cell[0] * 4  # the first level's cells: 2^FIRST_LEVEL finest cells
+    cell = cl.grid.cell[0] * 4  # the first level's cells: 2^FIRST_LEVEL finest cells
     assert np.all(dist[near] * angle < np.sqrt(3) * cell * 2 + 1e-12)
 
 
