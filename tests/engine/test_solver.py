@@ -213,7 +213,8 @@ def test_budget_helpers():
     assert area_side(16) == area_side(64) == 8 and area_side(4) == 4 and area_side(1) == 2
 
 
-def test_a_cancelled_transport_leaves_no_memory_behind():
+@pytest.mark.parametrize("far", [0.0, 0.5])  # alpha at every hit; far hits through clusters too
+def test_a_cancelled_transport_leaves_no_memory_behind(far):
     # a cancel raised from the progress callback (the solve job's Cancel) stops the chunk threads;
     # nothing the transport allocated may stay referenced (numpy reports its buffers to tracemalloc)
     import gc
@@ -225,7 +226,7 @@ def test_a_cancelled_transport_leaves_no_memory_behind():
     index = index_surfaces(s, st)
     _, support = overlap_matrix(atlas, index, st.quadrature)
     atlas = replace(atlas, support_area=support)
-    _ = atlas.grid, gather_transport(atlas, index, min_rays=1 << 14)  # caches built before measuring
+    _ = atlas.grid, gather_transport(atlas, index, min_rays=1 << 14, far=far)  # caches built before measuring
 
     def cancel_halfway(fraction):
         if fraction > 0.5:
@@ -235,7 +236,7 @@ def test_a_cancelled_transport_leaves_no_memory_behind():
     tracemalloc.start()
     try:
         with pytest.raises(OvradError, match="cancelled"):
-            gather_transport(atlas, index, min_rays=1 << 22, progress=cancel_halfway)
+            gather_transport(atlas, index, min_rays=1 << 22, progress=cancel_halfway, far=far)
         gc.collect()
         current, peak = tracemalloc.get_traced_memory()
     finally:
