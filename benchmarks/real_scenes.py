@@ -509,7 +509,17 @@ def baked_meshes(scene) -> list:
 
 
 def _emits(mat) -> bool:
-    return mat.node_tree is not None and any(n.bl_idname == "ShaderNodeEmission" for n in mat.node_tree.nodes)
+    """An Emission shader, or a Principled BSDF with a plain (unlinked, non-black) emission."""
+    if mat.node_tree is None:
+        return False
+    for n in mat.node_tree.nodes:
+        if n.bl_idname == "ShaderNodeEmission":
+            return True
+        if n.bl_idname == "ShaderNodeBsdfPrincipled":
+            colour, strength = n.inputs["Emission Color"], n.inputs["Emission Strength"]
+            if not colour.is_linked and strength.default_value > 0 and max(colour.default_value[:3]) > 0:
+                return True
+    return False
 
 
 def vertex_positions(objects) -> tuple[np.ndarray, np.ndarray]:
