@@ -32,6 +32,7 @@ a frame, so they cast parallel rays: the result is as smooth as the radiosity it
 
 from __future__ import annotations
 
+import threading
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -42,7 +43,7 @@ from scipy.stats import qmc
 from .direct import DirectLight, direct_irradiance
 from .geometry import tangent_frame
 from .lights import shadow_origin
-from .overlap import alpha_at, alpha_at_hits, patch_average
+from .overlap import alpha_at, patch_average
 from .parallel import WORKERS, threaded
 
 GATHER_SEED = 3  # the fixed scrambling of the pattern: any seed, but always the same
@@ -76,6 +77,7 @@ def hemisphere_pattern(count: int, seed: int = GATHER_SEED) -> np.ndarray:
 
 NEAR_LIGHT_SAMPLES = 16  # shadow-ray samples of soft lamps and emitters at a near hit
 NEAR_SKY_SAMPLES = 256  # world directions at a near hit
+CORNER_ALPHA = 0.25  # hits on triangles this small x the smallest patch radius read corners (CornerCache)
 
 
 @dataclass(frozen=True)
@@ -86,8 +88,8 @@ class NearField:
     emission the far hits count too: emitters the bake points do not sample as direct light).
     sky_seen (n,) bool: the patches whose near hits cast sky rays (pipeline.sky_patches); None:
     every one, if the light has a sky. corner_size: a hit on a triangle whose longest edge is at
-    most this x the hit's distance takes its direct light from the triangle's corners (CornerLight);
-    0: every near hit casts its own shadow rays."""
+    most this x the hit's distance (with 256 gather rays; x sqrt(256 / rays) with others) takes its
+    direct light from the triangle's corners (CornerCache); 0: every near hit casts shadow rays."""
 
     light: DirectLight
     indirect: np.ndarray
@@ -119,6 +121,7 @@ def gather_indirect(
     chunk_rays: int = 1 << 17,
     workers: int = WORKERS,
     near: NearField | None = None,
+    corner_alpha: float = CORNER_ALPHA,
 ) -> np.ndarray:
     """Indirect irradiance (m, 3) in W/m^2 at points (m, 3) with unit normals (m, 3).
 
@@ -130,7 +133,8 @@ def gather_indirect(
     Points go in chunks of about
     chunk_rays rays on `workers` threads; progress(fraction) is called on the calling thread.
     near: evaluate hits closer than a patch radius where they are (see NearField), else from the
-    patches like the others.
+    patches like the others. corner_alpha: hits on triangles this small against the patches read
+    the patches' values from the triangle's corners (CornerCache; 0: alpha at every hit).
     """
     pts = np.asarray(points, np.float64).reshape(-1, 3)
     nrm = np.asarray(normals, np.float64).reshape(-1, 3)
@@ -150,7 +154,7 @@ def gather_indirect(
     _ = atlas.grid  # build the lookup once, before the threads need it
     step = max(1, chunk_rays // rays)
     starts = list(range(0, m, step))
-    corners = CornerLight(problem, near) if near is not None else None
+    cache = CornerCache(problem, values, near, corner_alpha, rays)
 
     def chunk(k: int):
         sl = slice(starts[k], min(m, starts[k] + step))
@@ -162,27 +166,24 @@ def gather_indirect(
         )
         dirs = dirs.reshape(-1, 3)
         origins = shadow_origin(np.repeat(pts[sl], rays, axis=0), np.repeat(n, rays, axis=0), dirs, eps)
-        hits = alpha_at_hits(atlas, index, origins, dirs)
-        a, hit = hits.alpha, hits.ray
+        t, tri = index.rays.closest_hit(origins, dirs, np.inf)
+        hit = np.flatnonzero(tri >= 0)
+        t, tri = t[hit], tri[hit]
+        at = origins[hit] + t[:, None] * dirs[hit]
+        side = np.where(np.einsum("ij,ij->i", dirs[hit], index.charts.normals[tri]) < 0, 1, -1)
         got = np.zeros((len(dirs), 3))
-        got[hit] = a @ values
+        v = cache.values_at(at, tri, side)
+        got[hit] = v.far
         if near is not None:
             # weight 1 below half the reach, 0 beyond 1.5 reaches, linear between: a bake point moving
             # away from a wall sees its rays change over from one estimate to the other smoothly
-            reach = near.reach * (a @ atlas.radii)
-            w = np.clip(1.5 - hits.t / np.maximum(reach, 1e-300), 0.0, 1.0) * (reach > 0)
+            reach = near.reach * v.radius
+            w = np.clip(1.5 - t / np.maximum(reach, 1e-300), 0.0, 1.0) * (reach > 0)
             close = np.flatnonzero(w > 0)
             if len(close):
-                there = _near_values(
-                    problem,
-                    near,
-                    hits.points[close],
-                    hits.triangle[close],
-                    hits.side[close],
-                    a[close],
-                    hits.t[close],
-                    corners,
-                )
+                sky = None if v.sky is None else v.sky[close]
+                there = _near_values(problem, near, cache, at[close], tri[close], side[close], t[close], sky)
+                there += v.near[close]
                 got[hit[close]] += w[close, None] * (there - got[hit[close]])
         return sl, got.reshape(-1, rays, 3).mean(axis=1)
 
@@ -193,82 +194,163 @@ def gather_indirect(
     return out
 
 
-def _near_values(problem, near: NearField, points, triangles, sides, alpha, t, corners) -> np.ndarray:
-    """Radiosity (k, 3) that near hits (at distances t (k,)) send back, with their direct light
-    computed there: rho H_direct + the patches' indirect light and unsampled emission (alpha (k, n)
-    at the hits). Hits on triangles small against their distance take H from the corners (CornerLight)."""
+def _near_values(problem, near: NearField, cache, points, triangles, sides, t, sky) -> np.ndarray:
+    """rho H_direct (k, 3) at near hits (at distances t (k,)), H computed where they land (sky (k,)
+    bool: may they see the sky; None: all), or from their triangle's corners where it is small
+    against the distance (CornerCache). The caller adds the patches' indirect light (HitValues.near)."""
     index = problem.index
     surfaces = index.surfaces
     pts = inside(surfaces, points, triangles)
     H = np.empty((len(pts), 3))
-    small = corners.covers(triangles, t)
+    small = cache.size[triangles] <= cache.light_size * t
     if np.any(small):
-        H[small] = corners.at(points[small], triangles[small], sides[small])
+        H[small] = cache.light_at(points[small], triangles[small], sides[small])
     exact = np.flatnonzero(~small)
     if len(exact):
         tri = triangles[exact]
         normals = index.charts.normals[tri] * sides[exact, None]
-        sky_at = may_see_sky(alpha[exact], near.sky_seen) if near.light.sky is not None else None
+        sky_at = None if sky is None else sky[exact]
         H[exact] = direct_irradiance(surfaces, index.rays, near.light, pts[exact], normals, sky_at)[0]
-    return surfaces.reflectance_at(triangles, pts) * H + alpha @ (near.indirect + near.extra)
+    return surfaces.reflectance_at(triangles, pts) * H
 
 
-class CornerLight:
-    """The near field's direct light at the corners of the triangles near hits land on, computed
-    once per triangle and side (stepped a hair inside, as bake points are) and interpolated
-    linearly across the triangle.
+@dataclass(frozen=True)
+class HitValues:
+    """What the patches give at gather hits (k each): far (k, 3), the reflected radiosity; near
+    (k, 3), their indirect light and unsampled emission (NearField); radius (k,), the local patch
+    radius (alpha-weighted); sky (k,) bool, may the hit see the sky (None: all may)."""
 
-    A production mesh makes almost every gather hit a near one (a leaf next to a leaf, the
-    clutter on a shelf): a room of 100 k triangles at its default 2 000 patches sends 38 M of its
-    gather rays to hits closer than a patch radius, and shadow rays at each cost most of the bake.
-    A triangle whose size is under NearField.corner_size (0.25) x the distance it is seen at is
-    smaller than the spacing of the gather's rays where they land (256 rays: about 0.16 rad apart):
-    the gather does not resolve light inside it, so its corners' light stands for it. (On a floor in
-    4.4 cm triangles beside a 4 cm shadow band, 0.5 smeared the band; 0.25 moved the gathered light
-    by under 0.2 %: test_gather.py.) A large triangle seen close
-    (the floor at an object's foot) keeps its shadow rays at each hit. Values depend only on the
-    triangle and side, never on which thread or bake point asked first: no noise, same result.
+    far: np.ndarray
+    near: np.ndarray
+    radius: np.ndarray
+    sky: np.ndarray | None
+
+
+class CornerCache:
+    """The gather's hits on small triangles, read from values kept at the triangles' corners.
+
+    A production mesh sends most gather rays to small triangles (a leaf next to a leaf, the clutter
+    on a shelf): a room of 100 k triangles at its default 2 000 patches has 38 M near hits in its
+    vertex bake. Two things are computed once per triangle and side, at its corners (stepped a hair
+    inside, as bake points are), and interpolated linearly across it:
+    - alpha-weighted patch values (HitValues), on triangles whose longest edge is at most
+      corner_alpha x the smallest patch radius on their side: alpha varies on the patches' scale,
+      and a quarter of the smallest radius is finer than any patch resolves;
+    - the near field's direct light, for hits whose triangle is at most NearField.corner_size
+      (0.25) x their distance at 256 rays (x sqrt(256 / rays) at other counts): smaller than the
+      spacing of the gather's rays where they land (256 rays: about 0.16 rad apart), so the gather
+      does not resolve light inside it. (test_gather.py: on a floor in 4.4 cm triangles beside a
+      4 cm shadow band, 0.25 x the distance moved the light gathered by 4 096 rays by under 0.2 %;
+      0.5 x smeared the band, up to 2.7 %.)
+    Other hits (a large triangle seen close: the floor at an object's foot) take alpha and shadow
+    rays where they land. Values depend only on the triangle and side, never on which thread or bake
+    point asked first: no noise, the same result on any number of threads.
     """
 
-    def __init__(self, problem, near: NearField):
-        self.problem, self.near = problem, near
-        surfaces = problem.index.surfaces
-        c = surfaces.corners
+    LIGHT, VALUES = 0, 1
+
+    def __init__(
+        self,
+        problem,
+        values: np.ndarray,
+        near: NearField | None,
+        corner_alpha: float = CORNER_ALPHA,
+        rays: int = 256,
+    ):
+        self.problem, self.values, self.near = problem, values, near
+        index, atlas = problem.index, problem.atlas
+        c = index.surfaces.corners
         edges = np.stack([c[:, 1] - c[:, 0], c[:, 2] - c[:, 1], c[:, 0] - c[:, 2]], axis=1)
         self.size = np.sqrt(np.einsum("tej,tej->te", edges, edges).max(axis=1))
-        self.done = np.zeros((len(c), 2), bool)
-        self.values = np.zeros((len(c), 2, 3, 3))
+        smallest = np.full(len(index.sheet_chart) + 1, np.inf)  # last: no sheet (-1)
+        np.minimum.at(smallest, atlas.sheet, atlas.radii)
+        self.alpha_size = corner_alpha * smallest if corner_alpha > 0 else np.full_like(smallest, -1.0)
+        # the spacing of the gather's rays where they land goes as 1 / sqrt(rays)
+        self.light_size = 0.0 if near is None else near.corner_size * np.sqrt(256.0 / max(rays, 1))
+        self.slot = np.full((2, len(c), 2), -1, np.int64)  # (kind, triangle, back) -> row
+        self.rows = [np.zeros((64, 3, 3)), np.zeros((64, 3, 8))]  # grown by doubling
+        self.count = [0, 0]
+        self.lock = threading.Lock()
 
-    def covers(self, triangles, t) -> np.ndarray:
-        return self.size[triangles] <= self.near.corner_size * t
+    def _corners(self, tri, side):
+        index = self.problem.index
+        tri3, side3 = np.repeat(tri, 3), np.repeat(side, 3)
+        pts = inside(index.surfaces, index.surfaces.corners[tri].reshape(-1, 3), tri3)
+        return pts, tri3, side3
 
-    def _fill(self, triangles, sides) -> None:
-        back = (np.asarray(sides) < 0).astype(np.int64)
-        need = ~self.done[triangles, back]
-        if not np.any(need):
-            return
-        key = np.unique(triangles[need] * 2 + back[need])
-        tri, bk = key // 2, key % 2
-        side = np.where(bk == 1, -1, 1)
+    def _values(self, tri, side) -> np.ndarray:
+        pts, tri3, side3 = self._corners(tri, side)
+        a = alpha_at(self.problem.atlas, self.problem.index, pts, tri3, side3)
+        return _patch_values(self.problem, a, self.values, self.near)
+
+    def _light(self, tri, side) -> np.ndarray:
         problem, near = self.problem, self.near
         index = problem.index
-        surfaces = index.surfaces
-        tri3, side3 = np.repeat(tri, 3), np.repeat(side, 3)
-        pts = inside(surfaces, surfaces.corners[tri].reshape(-1, 3), tri3)
+        pts, tri3, side3 = self._corners(tri, side)
         normals = index.charts.normals[tri3] * side3[:, None]
         sky_at = None
         if near.light.sky is not None and near.sky_seen is not None:
             sky_at = may_see_sky(alpha_at(problem.atlas, index, pts, tri3, side3), near.sky_seen)
-        H = direct_irradiance(surfaces, index.rays, near.light, pts, normals, sky_at)[0]
-        self.values[tri, bk] = H.reshape(-1, 3, 3)
-        self.done[tri, bk] = True  # after the values: a thread that sees it set reads them whole
+        return direct_irradiance(index.surfaces, index.rays, near.light, pts, normals, sky_at)[0]
 
-    def at(self, points, triangles, sides) -> np.ndarray:
-        """Direct irradiance (k, 3) at points on triangles (k,), seen from sides (k,)."""
-        self._fill(triangles, sides)
-        back = (np.asarray(sides) < 0).astype(np.int64)
+    def _rows(self, kind: int, tri, side) -> np.ndarray:
+        """(k, 3 corners, width) kept values of one kind on triangles (k,) seen from sides (k,)."""
+        back = (np.asarray(side) < 0).astype(np.int64)
+        slot = self.slot[kind, tri, back]
+        if np.any(slot < 0):
+            with self.lock:  # fills are few (one per triangle and side) and run one at a time
+                need = self.slot[kind, tri, back] < 0
+                if np.any(need):
+                    key = np.unique(tri[need] * 2 + back[need])
+                    t_new, b_new = key // 2, key % 2
+                    fill = self._light if kind == self.LIGHT else self._values
+                    vals = fill(t_new, np.where(b_new == 1, -1, 1)).reshape(len(key), 3, -1)
+                    rows, count = self.rows[kind], self.count[kind]
+                    if count + len(key) > len(rows):  # readers keep the old array; its rows stay valid
+                        grown = np.empty((max(2 * len(rows), count + len(key)), *rows.shape[1:]))
+                        grown[:count] = rows[:count]
+                        self.rows[kind] = rows = grown
+                    rows[count : count + len(key)] = vals
+                    self.count[kind] = count + len(key)
+                    self.slot[kind, t_new, b_new] = count + np.arange(len(key))  # after the rows
+            slot = self.slot[kind, tri, back]
+        return self.rows[kind][slot]
+
+    def light_at(self, points, triangles, sides) -> np.ndarray:
+        """Near-field direct irradiance (k, 3) at points on triangles (k,), seen from sides (k,)."""
         w = barycentric(self.problem.index.surfaces.corners[triangles], points)
-        return np.einsum("kc,kcj->kj", w, self.values[triangles, back])
+        return np.einsum("kc,kcj->kj", w, self._rows(self.LIGHT, triangles, sides))
+
+    def values_at(self, points, triangles, sides) -> HitValues:
+        """HitValues at hits: from the corners on small triangles, from alpha at the others."""
+        problem = self.problem
+        small = self.size[triangles] <= self.alpha_size[problem.index.sheet_of(triangles, sides)]
+        out = np.empty((len(points), 8))
+        s = np.flatnonzero(small)
+        if len(s):
+            w = barycentric(problem.index.surfaces.corners[triangles[s]], points[s])
+            out[s] = np.einsum("kc,kcj->kj", w, self._rows(self.VALUES, triangles[s], sides[s]))
+        e = np.flatnonzero(~small)
+        if len(e):
+            a = alpha_at(problem.atlas, problem.index, points[e], triangles[e], sides[e])
+            out[e] = _patch_values(problem, a, self.values, self.near)
+        sky = None
+        if self.near is not None and self.near.light.sky is not None and self.near.sky_seen is not None:
+            sky = out[:, 7] > 0
+        return HitValues(out[:, :3], out[:, 3:6], out[:, 6], sky)
+
+
+def _patch_values(problem, alpha, values, near: NearField | None) -> np.ndarray:
+    """(k, 8) at points with alpha (k, n): alpha @ values, alpha @ (near.indirect + near.extra),
+    alpha @ radii, and 1 where the point may see the sky (may_see_sky), else 0."""
+    out = np.zeros((alpha.shape[0], 8))
+    out[:, :3] = alpha @ values
+    out[:, 6] = alpha @ problem.atlas.radii
+    if near is not None:
+        out[:, 3:6] = alpha @ (near.indirect + near.extra)
+        if near.light.sky is not None and near.sky_seen is not None:
+            out[:, 7] = may_see_sky(alpha, near.sky_seen)
+    return out
 
 
 def barycentric(corners, points) -> np.ndarray:
