@@ -13,9 +13,9 @@ solve (with its C, transport and shooting) and vertex bake; the peak resident me
 (the batch report's peak_memory_mb: the process's peak within the stage, Blender included); the
 relative RMS error at EVERY vertex against the scene's converged Cycles reference (cornell,
 lamps_doorway; speed_vs_error.py scores them the same way). `production` is the ~100 k-triangle
-production-like room of scripts/make_production_scene.py: it has no Cycles reference, so it is
-timed and measured only. Writes benchmarks/results/<name>.csv and <name>.png (log-log: time and
-peak memory against patches).
+production-like room of scripts/make_production_scene.py, scored at every vertex against
+reference/real/production.npz (make_production_reference.py) when it is there. Writes
+benchmarks/results/<name>.csv and <name>.png (log-log: time and peak memory against patches).
 """
 
 from __future__ import annotations
@@ -29,10 +29,16 @@ import sys
 import tempfile
 from pathlib import Path
 
+import bpy
+import numpy as np
+
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
 import speed_vs_error  # noqa: E402  (benchmarks/ is not a package)
+
+import real_scenes  # noqa: E402
+import scenes  # noqa: E402
 
 RESULTS = HERE / "results"
 FIELDS = [
@@ -56,18 +62,39 @@ FIELDS = [
 
 
 class Production:
-    """The production-like room (no reference): built once by its own script."""
+    """The production-like room, built once by its own script; scored at every vertex against
+    reference/real/production.npz (make_production_reference.py) when it is there."""
 
     name = "production"
+    REFERENCE = HERE / "reference" / "real" / "production.npz"
 
     def __init__(self, folder: Path):
         self.blend = folder / "production.blend"
         cmd = [str(ROOT / "scripts" / "blender"), "-b", "--python-exit-code", "1", "-P"]
         cmd += [str(ROOT / "scripts" / "make_production_scene.py"), "--", "--output", str(self.blend)]
         subprocess.run(cmd, check=True, capture_output=True)
+        self.ref = None
+        if self.REFERENCE.exists():
+            with np.load(self.REFERENCE) as z:
+                self.ref = {k: z[k] for k in z.files}
+            bpy.ops.wm.open_mainfile(filepath=str(self.blend))
+            names = [str(n) for n in self.ref["object_names"]]
+            positions, _ = real_scenes.vertex_positions([bpy.context.scene.objects[n] for n in names])
+            want = self.ref["positions"]
+            if positions.shape != want.shape or np.abs(positions - want).max() > 1e-4:
+                raise SystemExit("scale_bench: the production room no longer matches its reference")
 
     def score(self, attribute: str):
-        return float("nan"), float("nan")
+        if self.ref is None:
+            return float("nan"), float("nan")
+        names = [str(n) for n in self.ref["object_names"]]
+        values, _ = real_scenes.baked_values(bpy.context.scene, names, attribute)
+        ref = self.ref["radiance"].astype(np.float64)
+        every = np.ones(len(ref), bool)
+        if not np.all(np.isfinite(values)):
+            raise SystemExit(f"scale_bench: production: '{attribute}' is missing on scored vertices")
+        err = scenes.relative_rms(values, ref, every)
+        return err, err
 
 
 def bake(sc, count: int, folder: Path, extra: str = "") -> dict:
