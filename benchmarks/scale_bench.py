@@ -38,7 +38,6 @@ sys.path.insert(0, str(HERE))
 import speed_vs_error  # noqa: E402  (benchmarks/ is not a package)
 
 import real_scenes  # noqa: E402
-import scenes  # noqa: E402
 
 RESULTS = HERE / "results"
 FIELDS = [
@@ -58,6 +57,8 @@ FIELDS = [
     "transport_mb",
     "rays",
     "error",
+    "scored",
+    "skipped",
 ]
 
 
@@ -85,16 +86,15 @@ class Production:
                 raise SystemExit("scale_bench: the production room no longer matches its reference")
 
     def score(self, attribute: str):
+        """Relative RMS error over every vertex of every baked object (real_scenes.score); the
+        objects the batch skipped (a topology-changing modifier, by design) are listed."""
         if self.ref is None:
             return float("nan"), float("nan")
         names = [str(n) for n in self.ref["object_names"]]
-        values, _ = real_scenes.baked_values(bpy.context.scene, names, attribute)
-        ref = self.ref["radiance"].astype(np.float64)
-        every = np.ones(len(ref), bool)
-        if not np.all(np.isfinite(values)):
-            raise SystemExit(f"scale_bench: production: '{attribute}' is missing on scored vertices")
-        err = scenes.relative_rms(values, ref, every)
-        return err, err
+        values, self.skipped = real_scenes.baked_values(bpy.context.scene, names, attribute)
+        s = real_scenes.score(self.ref | {"radiance": self.ref["radiance"].astype(np.float64)}, values)
+        self.scored = s["scored"]
+        return s["rel_rms"], s["rel_rms"]
 
 
 def bake(sc, count: int, folder: Path, extra: str = "") -> dict:
@@ -105,6 +105,7 @@ def bake(sc, count: int, folder: Path, extra: str = "") -> dict:
     s, mb, inner = rep["seconds"], rep["peak_memory_mb"], rep["solve_peak_memory_mb"]
     seconds = s["generate"] + s["solve"] + s["bake"]
     err, _ = sc.score(rep["attribute"])
+    scored = dict(scored=getattr(sc, "scored", ""), skipped=";".join(getattr(sc, "skipped", [])))
     return (
         dict(scene=sc.name, target_patches=count, patches=rep["patches"], seconds=round(seconds, 2))
         | dict(generate_s=s["generate"], solve_s=s["solve"], bake_s=s["bake"])
@@ -113,6 +114,7 @@ def bake(sc, count: int, folder: Path, extra: str = "") -> dict:
         | dict(peak_mb=max(mb[k] for k in ("generate", "solve", "bake")), generate_mb=mb["generate"])
         | dict(solve_mb=mb["solve"], bake_mb=mb["bake"], transport_mb=inner.get("transport"))
         | dict(rays=rep["rays"], error=round(err, 5))
+        | scored
     )
 
 

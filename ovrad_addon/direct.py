@@ -57,6 +57,14 @@ class EmitterSamples:
     normals: np.ndarray
     area: np.ndarray
     radiance: np.ndarray
+    # each emitting triangle's own samples (None when samples stand for a share of the total power):
+    # the first sample of each triangle's run (s,), the triangle (s,) of each run, and per emitting
+    # triangle its corners (E, 3, 3), radiance (E, 3) and spacing of its samples (E,)
+    run_start: np.ndarray | None = None
+    run_triangle: np.ndarray | None = None
+    corners: np.ndarray | None = None
+    triangle_radiance: np.ndarray | None = None
+    spacing: np.ndarray | None = None
 
 
 def emitter_samples(
@@ -88,7 +96,7 @@ def emitter_samples(
         return EmitterSamples(pts, normal[pick], area[pick] * (total / count) / power[pick], radiance[pick])
     want = np.maximum(1, np.round(count * power / total)).astype(np.int64)
     side = np.ceil(np.sqrt(want)).astype(np.int64)
-    pts, nrm, wts, rad = [], [], [], []
+    pts, nrm, wts, rad, owner = [], [], [], [], []
     for k in np.unique(side):
         sel = np.flatnonzero(side == k)
         uv = subtriangle_centroids(int(k))
@@ -99,7 +107,57 @@ def emitter_samples(
         nrm.append(np.repeat(normal[sel], len(uv), axis=0))
         wts.append(np.repeat(area[sel] / len(uv), len(uv)))
         rad.append(np.repeat(radiance[sel], len(uv), axis=0))
-    return EmitterSamples(np.vstack(pts), np.vstack(nrm), np.concatenate(wts), np.vstack(rad))
+        owner.append(np.repeat(sel, len(uv)))
+    owner = np.concatenate(owner)  # each triangle's samples are one run
+    start = np.flatnonzero(np.r_[True, owner[1:] != owner[:-1]])
+    spacing = np.sqrt(area / side**2)
+    return EmitterSamples(
+        np.vstack(pts),
+        np.vstack(nrm),
+        np.concatenate(wts),
+        np.vstack(rad),
+        start,
+        owner[start],
+        c,
+        radiance,
+        spacing,
+    )
+
+
+NEAR_EMITTER = 2.0  # a point closer to an emitting triangle's samples than this x their spacing
+# gets that triangle's light from its exact form factor (polygon_irradiance), not from the samples
+
+
+def polygon_irradiance(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Irradiance (k,) at points (k, 3) with unit normals (k, 3) from triangles (k, 3, 3) of unit
+    radiance emitting from both sides, unoccluded: (1/2) |sum over edges gamma_i n . c_i| (Lambert's
+    contour integral, pi x the form factor) over the part of the triangle above the point's plane."""
+    h = np.einsum("kcj,kj->kc", triangles - points[:, None], normals)
+    slots = np.zeros((len(points), 6, 3))
+    valid = np.zeros((len(points), 6), bool)
+    for j in range(3):  # Sutherland-Hodgman: each corner above the plane, each edge's crossing
+        a, b = triangles[:, j], triangles[:, (j + 1) % 3]
+        ha, hb = h[:, j], h[:, (j + 1) % 3]
+        slots[:, 2 * j], valid[:, 2 * j] = a, ha > 0
+        cross = (ha > 0) != (hb > 0)
+        f = np.where(cross, ha / np.where(cross, ha - hb, 1.0), 0.0)
+        slots[:, 2 * j + 1], valid[:, 2 * j + 1] = a + f[:, None] * (b - a), cross
+    r = slots - points[:, None]
+    total = np.zeros(len(points))
+    for j in range(6):  # each kept vertex to the next kept one, cyclically
+        nxt = np.full(len(points), -1)
+        for o in range(5, 0, -1):
+            nxt = np.where(valid[:, (j + o) % 6], (j + o) % 6, nxt)
+        use = valid[:, j] & (nxt >= 0)
+        a = r[:, j]
+        b = np.take_along_axis(r, np.maximum(nxt, 0)[:, None, None].repeat(3, axis=2), axis=1)[:, 0]
+        c = np.cross(a, b)
+        cn = np.linalg.norm(c, axis=1)
+        gamma = np.arctan2(cn, np.einsum("kj,kj->k", a, b))
+        total += np.where(
+            use & (cn > 0), gamma * np.einsum("kj,kj->k", c, normals) / np.maximum(cn, 1e-300), 0.0
+        )
+    return 0.5 * np.abs(total)
 
 
 def emitter_irradiance(
@@ -150,7 +208,28 @@ def emitter_irradiance(
         # them per point (np.add.at per pair was a fifth of a production room's near-field time)
         g = np.where(lit, cos_r * cos_s / np.maximum(d2, 1e-300) * src.area[None, :], 0.0)
         H[rs] += g @ src.radiance
+        if src.run_start is not None:
+            _near_emitters(H, rs, P, N, src, d, g, pair, lit)
     return H, cast
+
+
+def _near_emitters(H, rs, P, N, src: EmitterSamples, d, g, pair, lit) -> None:
+    """Points within NEAR_EMITTER sample spacings of an emitting triangle's samples: its sampled light
+    replaced by its exact unoccluded light x the fraction of its samples they see. A fixed rule of
+    points is singular there: 1 cm over a lamp quad sampled 15 cm apart it gave 0.7 W/m^2 where the
+    quad sends 38, and spikes of thousands right over a sample, which projected onto the patches
+    rang into negative radiosity across a whole room."""
+    start, tri = src.run_start, src.run_triangle
+    near = np.minimum.reduceat(d, start, axis=1) < NEAR_EMITTER * src.spacing[tri][None, :]
+    if not np.any(near):
+        return
+    i, e = np.nonzero(near)
+    sampled = np.add.reduceat(g, start, axis=1)[i, e]
+    seen = np.add.reduceat(lit.astype(np.int64), start, axis=1)[i, e]
+    facing = np.add.reduceat(pair.astype(np.int64), start, axis=1)[i, e]
+    seen_fraction = np.where(facing > 0, seen / np.maximum(facing, 1), 0.0)
+    exact = polygon_irradiance(P[i], N[i], src.corners[tri[e]])
+    np.add.at(H, rs[i], (exact * seen_fraction - sampled)[:, None] * src.triangle_radiance[tri[e]])
 
 
 def direct_irradiance(

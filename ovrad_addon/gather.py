@@ -43,7 +43,7 @@ from scipy.stats import qmc
 from .direct import DirectLight, direct_irradiance
 from .geometry import tangent_frame
 from .lights import shadow_origin
-from .overlap import alpha_at, patch_average
+from .overlap import alpha_at, patch_average, ray_hits
 from .parallel import WORKERS, threaded
 
 GATHER_SEED = 3  # the fixed scrambling of the pattern: any seed, but always the same
@@ -166,11 +166,8 @@ def gather_indirect(
         )
         dirs = dirs.reshape(-1, 3)
         origins = shadow_origin(np.repeat(pts[sl], rays, axis=0), np.repeat(n, rays, axis=0), dirs, eps)
-        t, tri = index.rays.closest_hit(origins, dirs, np.inf)
-        hit = np.flatnonzero(tri >= 0)
-        t, tri = t[hit], tri[hit]
-        at = origins[hit] + t[:, None] * dirs[hit]
-        side = np.where(np.einsum("ij,ij->i", dirs[hit], index.charts.normals[tri]) < 0, 1, -1)
+        hits = ray_hits(index, origins, dirs)
+        hit, t, at, tri, side = hits.ray, hits.t, hits.points, hits.triangle, hits.side
         got = np.zeros((len(dirs), 3))
         v = cache.values_at(at, tri, side)
         got[hit] = v.far

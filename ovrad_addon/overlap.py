@@ -523,27 +523,24 @@ def alpha_at(atlas, index, points: np.ndarray, triangle: np.ndarray, side) -> cs
 
 @dataclass(frozen=True)
 class RayHits:
-    """Where rays landed on covered-or-not surface: ray (k,) index of each hitting ray, t (k,) its
-    distance, points (k, 3), triangle (k,), side (k,) +-1 the side the ray arrives at, and alpha
-    (k x n sparse) there."""
+    """Where rays landed: ray (k,) index of each ray that hit, t (k,) its distance, points (k, 3),
+    triangle (k,), and side (k,) +-1, the side of the triangle the ray arrives at."""
 
     ray: np.ndarray
     t: np.ndarray
     points: np.ndarray
     triangle: np.ndarray
     side: np.ndarray
-    alpha: csr_matrix
 
 
-def alpha_at_hits(atlas, index, origins: np.ndarray, directions: np.ndarray) -> RayHits:
-    """Cast rays (origins, unit directions (m, 3)) and take alpha where they land, on the side they
-    arrive at: the lookup both the transport and the final gather are built on."""
+def ray_hits(index, origins: np.ndarray, directions: np.ndarray) -> RayHits:
+    """Cast rays (origins, unit directions (m, 3)) to the surfaces: the hits where the transport
+    and the final gather look alpha up (alpha_at), on the side they arrive at."""
     t, tri = index.rays.closest_hit(origins, directions, np.inf)
     hit = np.flatnonzero(tri >= 0)
-    points = origins[hit] + t[hit, None] * directions[hit]
     tri = tri[hit]
     side = np.where(np.einsum("ij,ij->i", directions[hit], index.charts.normals[tri]) < 0, 1, -1)
-    return RayHits(hit, t[hit], points, tri, side, alpha_at(atlas, index, points, tri, side))
+    return RayHits(hit, t[hit], origins[hit] + t[hit, None] * directions[hit], tri, side)
 
 
 def reconstruct(alpha: csr_matrix, values: np.ndarray) -> np.ndarray:

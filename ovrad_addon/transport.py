@@ -21,7 +21,7 @@ from scipy.sparse import coo_matrix, csc_matrix, csr_matrix
 
 from .clusters import Clusters
 from .geometry import tangent_frame
-from .overlap import alpha_at, patch_quadrature
+from .overlap import alpha_at, patch_quadrature, ray_hits
 from .parallel import WORKERS, threaded
 
 
@@ -222,12 +222,8 @@ def gather_transport(
         nrm = pts.normals[sl]
         dirs = cosine_directions(nrm, rays_per_point, rng).reshape(-1, 3)
         origins = np.repeat(pts.points[sl] + offset * nrm, rays_per_point, axis=0)
-        t, tri = index.rays.closest_hit(origins, dirs, np.inf)
-        hit = np.flatnonzero(tri >= 0)
-        points = origins[hit] + t[hit, None] * dirs[hit]
-        tri, t = tri[hit], t[hit]
-        cos = np.einsum("ij,ij->i", dirs[hit], index.charts.normals[tri])
-        side = np.where(cos < 0, 1, -1)
+        hits = ray_hits(index, origins, dirs)
+        hit, t, points, tri, side = hits.ray, hits.t, hits.points, hits.triangle, hits.side
         owner = np.repeat(pts.owner[sl], rays_per_point)[hit]
         ray_w = np.repeat(pts.weight[sl] / rays_per_point, rays_per_point)[hit]
         far_part = None
