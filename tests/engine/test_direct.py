@@ -270,3 +270,31 @@ def test_polygon_irradiance_clips_to_the_points_hemisphere():
         want[i] = np.sum(cos_r * np.abs(v[:, 2]) / np.sqrt(d2) / d2) * area
     assert np.any(want == 0) or np.any((want > 0) & (want < 0.9 * np.max(want)))
     np.testing.assert_allclose(got, want, rtol=2e-4, atol=1e-6)
+
+
+def test_a_lamp_quad_just_under_a_ceiling_does_not_ring():
+    """A closed 2 m room lit only by a black 0.5 m lamp quad 1 cm under its ceiling (as the
+    production room's): the ceiling over the quad gets its back face's light, and the first
+    shot's projection onto the patches stays a light distribution, not a ringing one (with the
+    fixed rule alone, spikes over its samples drove patches to large negative radiosity)."""
+    v, t, o = scenes.merge(
+        scenes.box_faces((0, 0, 0), (2, 2, 2), inward=True)
+        + [scenes.quad((0.75, 0.75, 1.99), (0.75, 1.25, 1.99), (1.25, 1.25, 1.99), (1.25, 0.75, 1.99))],
+        obj=[0] * 6 + [1],
+    )
+    emission = np.where(o[:, None] == 1, [10.0, 10.0, 10.0], 0.0)
+    rho = np.where(o[:, None] == 1, 0.0, 0.7) * np.ones((1, 3))
+    s = Surfaces.from_arrays(v, t, o, rho, emission, object_names=["room", "lamp"])
+    problem = prepare(s, build_atlas(s, AtlasSettings(patch_count=300)))
+    state = solve(problem, (), SolveSettings())
+    room = problem.atlas.source_object == 0
+    B = state.radiosity[room, 0]
+    # measured -0.054 x (the sharp edge of the light on the ceiling, projected); -0.40 x with the
+    # fixed rule alone
+    assert B.min() > -0.1 * B.max()
+    light = direct_light(problem, (), SolveSettings())
+    over = np.array([[1.0, 1.0, 2.0 - 1e-4]])
+    H, _ = direct.direct_irradiance(s, problem.index.rays, light, over, np.array([[0.0, 0.0, -1.0]]))
+    quad = np.array([[0.75, 0.75, 1.99], [0.75, 1.25, 1.99], [1.25, 1.25, 1.99], [1.25, 0.75, 1.99]])
+    exact = np.pi * analytic.ff_point_to_polygon(over, np.array([[0.0, 0.0, -1.0]]), quad) * 10.0
+    np.testing.assert_allclose(H[:, 0], exact, rtol=1e-4)
