@@ -302,7 +302,7 @@ def test_near_hits_resolve_a_shadow_at_a_walls_foot(cuts):
     within about a patch radius get their direct light where they land, and with a longer reach the
     gathered light converges to the integral of the floor's exact radiosity. The floor in 8 x 8
     squares (35 cm triangles) has every near hit cast shadow rays; in 64 x 64 (4.4 cm), hits
-    beyond 18 cm take their light from their triangle's corners (gather.CornerCache)."""
+    beyond 70 cm (18 cm at 256 rays) take their light from their triangle's corners (CornerCache)."""
     floor_v, floor_t = scenes.plane(size=2.0, n=cuts)
     floor_v = floor_v - [1.0, 0.0, 0.0]  # |x| <= 1, 0 <= y <= 2
     wall = scenes.quad((1, 0, 0), (-1, 0, 0), (-1, 0, 1), (1, 0, 1))  # faces +y (checked below)
