@@ -2,7 +2,8 @@
 
 Each builder fills an empty factory file with one class of scene that broke ovrad once (see the
 README's "Real scenes" table): a partition with a doorway, a box resting on a floor that runs under
-it and a shelf against a wall, an emitter filling an opening of the ceiling, linked duplicates,
+it and a shelf against a wall, an emitter filling an opening of the ceiling, an emitter, a board
+and a picture hung a hair off the ceiling, the floor and a wall (covers), linked duplicates,
 collection instances, a textured floor, and sky light through a window (constant and HDR); and
 lamps_doorway, the doorway's rooms lit by all four lamp types (point, spot, area, and a sun through
 a window), the second scene of benchmarks/speed_vs_error.py.
@@ -392,6 +393,25 @@ def ceiling_opening():
     return scene
 
 
+def covers():
+    """Things hung a hair off a surface: an emissive panel 1 cm under an intact ceiling (its back
+    lights the ceiling over it, Cycles' emission being two-sided), a board floating 4 cm over the
+    floor and a picture 2 cm off a wall. The surface under each cover sees other light than the
+    surface beside it; a patch straddling the cover's outline mixes the two."""
+    scene = _new_scene("covers")
+    white, warm = diffuse("White", WHITE), diffuse("Warm", WARM)
+    w, d, h = 2.4, 2.4, 2.2
+    mesh("Room", list(room_faces(w, d, h).values()), white)
+    x0, x1, y0, y1, z = 0.9, 1.5, 0.9, 1.5, h - 0.01
+    mesh("Panel", [[(x0, y0, z), (x0, y1, z), (x1, y1, z), (x1, y0, z)]], emission("Emit", (8.0, 8.0, 8.0)))
+    place("Board", box_mesh("Board", (0.9, 0.6, 0.03), warm, cuts=3), (0.8, 1.6, 0.04), rotation_z=0.2)
+    place(
+        "Picture", box_mesh("Picture", (0.6, 0.03, 0.4), diffuse("Blue", BLUE), cuts=3), (1.4, d - 0.035, 1.0)
+    )
+    camera(scene, (0.2, 0.1, 1.2), (1.4, 1.6, 0.8))
+    return scene
+
+
 def duplicates():
     """Two benches sharing one mesh (linked duplicates), one under the lamp and one in a corner."""
     scene = _new_scene("duplicates")
@@ -471,6 +491,7 @@ SCENES = {
     "lamps_doorway": lamps_doorway,
     "contact": contact,
     "ceiling_opening": ceiling_opening,
+    "covers": covers,
     "duplicates": duplicates,
     "instances": instances,
     "textured": textured_floor,

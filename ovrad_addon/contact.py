@@ -15,17 +15,25 @@ parts on both sides of the line stay covered; the anchors are stored with the at
 patches pay for rays. A point no patch sees (a sliver) keeps the plain membership, so alpha still
 sums to one wherever it did before. Closed objects' footprints are removed before this
 (overlap.buried); curved sheets and clutter balls are left as they are.
+
+The outline of a cover is a contact line too (covered()): geometry hung closer over the sheet than
+half a patch radius (a lamp panel 1 cm under a ceiling, a picture off a wall, a board low over a
+floor) parts the sheet under it from the sheet beside it. On the production room (an emissive
+quad 1 cm under its ceiling, its back lighting the ceiling over it) ceiling patches straddling
+the quad's outline carried that light into the room: 14 % too bright against Cycles at 2 000
+patches, 7 % with covers.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
 from .names import SHAPE_BALL
 
 LIFT = 2e-3  # the segment's height over the sheet, relative to the patch radius
+COVER = 0.5  # a point with other geometry this close over it (share of the patch radius) is covered
 LIFT_EXTENT = 2e-6  # ... and at least this much of the scene size (float32 rays)
 MAX_PIECES = 3  # a patch splits into at most this many parts at contact lines
 LEAST_PIECE = 0.05  # ... each holding at least this share of its area
@@ -36,12 +44,14 @@ CHUNK = 8192  # patches whose rule points contacts() holds at once
 class Contacts:
     """Per patch: anchor (n, 3) on its sheet, lift (n,) the segments' height, cut (n,) bool;
     whole (n,) bool: a planar patch all of whose coarse rule points lie on its sheet, uncovered
-    (no border, footprint or hole within its disk or square, as far as the rule can tell)."""
+    (no border, footprint or hole within its disk or square, as far as the rule can tell);
+    covered (n,) bool: the anchor lies under a cover (covered()))."""
 
     anchor: np.ndarray
     lift: np.ndarray
     cut: np.ndarray
     whole: np.ndarray
+    covered: np.ndarray
 
 
 def _key(atlas) -> tuple:
@@ -109,6 +119,7 @@ def contacts(atlas, index) -> Contacts:
     anchor = atlas.centers.copy() if atlas.anchor is None else np.asarray(atlas.anchor, np.float64).copy()
     cut = np.zeros(n, bool)
     whole = np.zeros(n, bool)
+    under = np.zeros(n, bool)
     every = planar_patches(atlas, index)
     for start in range(0, len(every), CHUNK):  # a patch's anchor and cut are its own: in chunks
         ids = every[start : start + CHUNK]
@@ -117,11 +128,14 @@ def contacts(atlas, index) -> Contacts:
         near = _nearest(atlas, ids, owner, points, todo[owner])
         got = near >= 0
         anchor[ids[got]] = points[near[got]]
+        anchor[ids] = np.where(np.isfinite(anchor[ids]), anchor[ids], atlas.centers[ids])
+        under[ids] = covered(atlas, index, ids, anchor[ids], lift)
         g = ids[owner]
         blocked = _blocked(index, atlas.normals[g], lift[g], anchor[g], points)
+        blocked |= covered(atlas, index, g, points, lift) != under[g]
         cut[ids] = np.bincount(owner, weights=blocked, minlength=len(ids)) > 0
     anchor = np.where(np.isfinite(anchor), anchor, atlas.centers)
-    out = Contacts(anchor, lift, cut, whole)
+    out = Contacts(anchor, lift, cut, whole, under)
     index.cache[key] = out
     index.cache[("contacts of", id(atlas))] = (atlas, out)
     return out
@@ -132,7 +146,7 @@ def carry_over(atlas, index, keep: np.ndarray, selected) -> None:
     lift and cut are its own, so they are the ones contacts() would find again."""
     c = index.cache.get(_key(atlas))
     if c is not None:
-        index.cache[_key(selected)] = Contacts(c.anchor[keep], c.lift[keep], c.cut[keep], c.whole[keep])
+        index.cache[_key(selected)] = Contacts(*(getattr(c, f.name)[keep] for f in fields(Contacts)))
 
 
 def split_at_contacts(atlas, index, pieces: int = MAX_PIECES, least: float = LEAST_PIECE):
@@ -173,6 +187,7 @@ def _parts(atlas, index, ids, lift, pieces: int, least: float):
     out = []
     owner, points, weights, tri, _ = _rule(atlas, index, ids)
     part = np.full(len(owner), -1, np.int64)
+    under = covered(atlas, index, ids[owner], points, lift)
     heads = []
     for k in range(pieces):
         a = _nearest(atlas, ids, owner, points, part < 0)
@@ -182,6 +197,7 @@ def _parts(atlas, index, ids, lift, pieces: int, least: float):
         test = np.flatnonzero((part < 0) & (a[owner] >= 0))
         g = ids[owner[test]]
         seen = ~_blocked(index, atlas.normals[g], lift[g], points[a[owner[test]]], points[test])
+        seen &= under[a[owner[test]]] == under[test]
         part[test[seen]] = k
         part[a[a >= 0]] = k
     total = np.bincount(owner, weights=weights, minlength=len(ids))
@@ -216,15 +232,46 @@ def _blocked(index, normals: np.ndarray, lift: np.ndarray, start: np.ndarray, en
     return out
 
 
+def covered(atlas, index, patches: np.ndarray, points: np.ndarray, lift: np.ndarray) -> np.ndarray:
+    """(m,) bool per (patch, point on its sheet) pair: other geometry lies over the point, along
+    the sheet's normal, closer than COVER x the patch radius (lift: per patch, as _lift()).
+
+    A lamp panel a centimetre under a ceiling, a frame hung off a wall, a sofa low over a floor:
+    the sheet under the cover and the sheet beside it see different light (the ceiling over a
+    lamp's back gets tens of times the light of the ceiling around it, and none of it comes out),
+    and a patch much wider than the gap cannot follow the change at the cover's rim. So the cover's
+    rim is a contact line: covered and open points are never in one patch's part (a patch that
+    straddles the rim splits, as at a contact), and the light under the cover stays there.
+    """
+    if len(patches) == 0:
+        return np.zeros(0, bool)
+    n = atlas.normals[patches]
+    up = lift[patches]
+    reach = COVER * atlas.radii[patches] - up
+    out = np.zeros(len(patches), bool)
+    ok = reach > 0
+    if ok.any():
+        out[ok] = index.rays.occluded(points[ok] + n[ok] * up[ok, None], n[ok], reach[ok])
+    return out
+
+
 def visible(atlas, index, patches: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """(m,) bool for (patch, point) pairs: the point is seen from the patch's anchor (always true
-    for a patch that is not cut)."""
+    """(m,) bool for (patch, point) pairs: the point is seen from the patch's anchor along the sheet
+    and lies on the anchor's side of any cover's rim. Always true for a patch neither cut nor
+    covered; a covered patch that the coarse rule found whole is still tested, so that the part
+    of its disk reaching past the cover's rim (between two rule points) never carries the light
+    under the cover into the open."""
     c = contacts(atlas, index)
     out = np.ones(len(patches), bool)
-    test = np.flatnonzero(c.cut[patches])
+    test = np.flatnonzero(c.cut[patches] | c.covered[patches])
     if len(test):
         g = patches[test]
-        out[test] = ~_blocked(index, atlas.normals[g], c.lift[g], c.anchor[g], points[test])
+        seen = np.ones(len(test), bool)
+        k = np.flatnonzero(c.cut[g])
+        seen[k] = ~_blocked(index, atlas.normals[g[k]], c.lift[g[k]], c.anchor[g[k]], points[test[k]])
+        s = np.flatnonzero(seen)
+        seen[s] = covered(atlas, index, g[s], points[test[s]], c.lift) == c.covered[g[s]]
+        out[test] = seen
     return out
 
 

@@ -65,6 +65,9 @@ class EmitterSamples:
     corners: np.ndarray | None = None
     triangle_radiance: np.ndarray | None = None
     spacing: np.ndarray | None = None
+    # samples picked on the power of more emitting triangles than samples: each one's triangle (k,)
+    # (corners, triangle_radiance and spacing then hold every emitting triangle's)
+    pick: np.ndarray | None = None
 
 
 def emitter_samples(
@@ -93,7 +96,18 @@ def emitter_samples(
         pick = np.searchsorted(np.cumsum(power) / total, (np.arange(count) + 0.5) / count)
         pick = np.minimum(pick, len(c) - 1)
         pts = c[pick].mean(axis=1)
-        return EmitterSamples(pts, normal[pick], area[pick] * (total / count) / power[pick], radiance[pick])
+        # one sample stands for total / count of the power: on triangle t, for this much area
+        spacing = np.sqrt(total / count / radiance.sum(axis=1))
+        return EmitterSamples(
+            pts,
+            normal[pick],
+            area[pick] * (total / count) / power[pick],
+            radiance[pick],
+            corners=c,
+            triangle_radiance=radiance,
+            spacing=spacing,
+            pick=pick,
+        )
     want = np.maximum(1, np.round(count * power / total)).astype(np.int64)
     side = np.ceil(np.sqrt(want)).astype(np.int64)
     pts, nrm, wts, rad, owner = [], [], [], [], []
@@ -210,6 +224,8 @@ def emitter_irradiance(
         H[rs] += g @ src.radiance
         if src.run_start is not None:
             _near_emitters(H, rs, P, N, src, d, g, pair, lit)
+        elif src.pick is not None:
+            cast += _near_picked(H, rs, P, N, src, g, rays, eps)
     return H, cast
 
 
@@ -230,6 +246,56 @@ def _near_emitters(H, rs, P, N, src: EmitterSamples, d, g, pair, lit) -> None:
     seen_fraction = np.where(facing > 0, seen / np.maximum(facing, 1), 0.0)
     exact = polygon_irradiance(P[i], N[i], src.corners[tri[e]])
     np.add.at(H, rs[i], (exact * seen_fraction - sampled)[:, None] * src.triangle_radiance[tri[e]])
+
+
+def _near_picked(H, rs, P, N, src: EmitterSamples, g, rays, eps: float) -> int:
+    """_near_emitters for samples picked on the power of more triangles than samples (a subdivided
+    panel, an emissive mesh): every emitting triangle within NEAR_EMITTER sample spacings of a point
+    gives its exact unoccluded light x whether the point sees its centroid (one shadow ray each), in
+    place of what the samples picked on it gave. Returns the rays cast."""
+    from scipy.spatial import cKDTree
+
+    c = src.corners
+    centroid = c.mean(axis=1)
+    size = np.linalg.norm(c - centroid[:, None], axis=2).max(axis=1)
+    tree = cKDTree(centroid)
+    found = tree.query_ball_point(P, NEAR_EMITTER * float(src.spacing.max()) + float(size.max()))
+    counts = np.fromiter((len(f) for f in found), np.int64, len(P))
+    if counts.sum() == 0:
+        return 0
+    i = np.repeat(np.arange(len(P)), counts)
+    e = np.fromiter((t for f in found for t in f), np.int64, int(counts.sum()))
+    v = centroid[e] - P[i]
+    dist = np.linalg.norm(v, axis=1)
+    near = dist - size[e] < NEAR_EMITTER * src.spacing[e]
+    i, e, v, dist = i[near], e[near], v[near], dist[near]
+    if len(i) == 0:
+        return 0
+    exact = polygon_irradiance(P[i], N[i], c[e])
+    omega = v / np.maximum(dist, 1e-300)[:, None]
+    normal = triangle_geometry(c[e])[1]
+    facing = np.einsum("ij,ij->i", omega, normal)
+    ask = (np.einsum("ij,ij->i", omega, N[i]) > 0) & (exact > 0)
+    seen = np.ones(len(i), bool)  # a centroid under the point's horizon: the clipped part is seen
+    if ask.any():
+        origin = shadow_origin(P[i][ask], N[i][ask], omega[ask], eps)
+        seg = centroid[e][ask] - (eps * np.sign(facing[ask]))[:, None] * normal[ask] - origin
+        length = np.linalg.norm(seg, axis=1)
+        seen[ask] = ~rays.occluded(origin, seg / np.maximum(length, 1e-300)[:, None], length * (1 - 1e-6))
+    H_exact = (exact * seen)[:, None] * src.triangle_radiance[e]
+    np.add.at(H, rs[i], H_exact)
+    # less what the samples picked on those triangles gave (samples of a triangle are one run once
+    # sorted by triangle)
+    order = np.argsort(src.pick, kind="stable")
+    picked = src.pick[order]
+    lo, hi = np.searchsorted(picked, e, "left"), np.searchsorted(picked, e, "right")
+    many = hi - lo
+    if many.sum():
+        row = np.repeat(i, many)
+        first = np.repeat(lo - np.r_[0, np.cumsum(many)[:-1]], many)
+        sample = order[np.arange(int(many.sum())) + first]
+        np.add.at(H, rs[row], -g[row, sample][:, None] * src.radiance[sample])
+    return int(ask.sum())
 
 
 def direct_irradiance(

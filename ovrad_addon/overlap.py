@@ -356,7 +356,7 @@ def repeated_rows(atlas, index, ph: np.ndarray, pi: np.ndarray, start: np.ndarra
     con = contacts(atlas, index)
     plain = np.zeros(n, bool)
     plain[planar_patches(atlas, index)] = True
-    uncut = plain & ~con.cut
+    uncut = plain & ~con.cut & ~con.covered  # a covered patch's disk may reach past its cover
     ok = uncut & con.whole & (atlas.shapes == SHAPE_DISK)
     other = ph != pi
     ok[ph[other & ~uncut[pi]]] = False  # a neighbour cut by a contact line

@@ -175,6 +175,33 @@ def test_an_emitter_of_more_triangles_than_samples_is_picked_by_power():
         assert abs(H[:, 0].sum() / exact.sum() - 1.0) < 2e-3
 
 
+@pytest.mark.parametrize("side", [1, -1])
+def test_points_close_to_an_emitter_of_more_triangles_than_samples_get_its_exact_light(side, monkeypatch):
+    """The same 800-triangle square, points 1 mm to 5 cm off it on either side (its back emits
+    too), under its interior: the 64 samples picked on power stand 12.5 cm apart, so alone they
+    are singular there; the triangles within two spacings give their exact light instead."""
+    pv, pt = scenes.plane(size=1.0, n=20, z=0.5)
+    s = Surfaces.from_arrays(pv - [0.5, 0.5, 0.0], pt, emission=[1.0, 1.0, 1.0])
+    rect = np.array([[-0.5, -0.5, 0.5], [0.5, -0.5, 0.5], [0.5, 0.5, 0.5], [-0.5, 0.5, 0.5]])
+    rays = make_rays(s.vertices, s.triangles)
+    rng = np.random.default_rng(5)
+    pts = np.zeros((200, 3))
+    pts[:, :2] = rng.uniform(-0.45, 0.45, size=(200, 2))
+    nrm = np.tile([0.0, 0.0, side], (200, 1))
+    worst = {}
+    for near in (direct.NEAR_EMITTER, 0.0):
+        monkeypatch.setattr(direct, "NEAR_EMITTER", near)
+        for h in (1e-3, 1e-2, 5e-2):
+            pts[:, 2] = 0.5 - side * h
+            exact = np.pi * analytic.ff_point_to_polygon(pts, nrm, rect)
+            H, _ = emitter_irradiance(s, rays, np.ones(len(pt), bool), pts, nrm, 64)
+            worst[near, h] = np.abs(H[:, 0] / exact - 1.0).max()
+    # measured: at most 0.03 % at 1 cm and 0.7 % at 5 cm; the samples alone: 50 % at 1 cm and
+    # 280 % at 5 cm (a point right under a sample)
+    assert max(v for (near, _), v in worst.items() if near > 0) < 0.015
+    assert worst[0.0, 1e-2] > 0.3 and worst[0.0, 5e-2] > 1.0
+
+
 @pytest.fixture(scope="module")
 def half_shadowed_floor():
     """A 4 m floor at z = 0 and a pure occluder over its half x < 0 at z = 1."""
