@@ -13,7 +13,10 @@ Cells are the sheets' own lookup grids (lookup.PatchGrid) coarsened by powers of
 FIRST_LEVEL (cells about two patch radii wide) up to one cell per sheet, and split by the
 direction of the surface normal (NORMAL_BINS per cube face), so a cluster never mixes the two
 faces of a crease or both sides of a thin object, whose light differs and which rays see at
-different angles. Each hit takes the coarsest level that is far enough.
+different angles; and by cover (contact.covered): the ceiling over a lamp hung under it, ~30 times
+brighter than the ceiling beside it, is a cluster of its own, else every far ray landing next to
+the lamp brought back a share of the light trapped over it (the production room at 100 000
+patches, +7 % on its walls). Each hit takes the coarsest level that is far enough.
 
 Energy is conserved exactly: every row of P sums to 1, so a row of G closes as with alpha (the
 furnace stays exact), and a uniform radiosity is reproduced exactly.
@@ -63,11 +66,13 @@ class Clusters:
     first: np.ndarray
     push: csc_matrix
     far: float
+    reach: np.ndarray | None = None  # per sheet: how close a cover over a hit must be (its patches' radius)
 
     @classmethod
-    def build(cls, atlas, points, far: float) -> Clusters:
+    def build(cls, atlas, points, far: float, covered: np.ndarray | None = None) -> Clusters:
         """Clusters over an atlas from its receiver points (transport.ReceiverPoints: owner,
-        points, normals on the patch's side, area weights summing to each support area).
+        points, normals on the patch's side, area weights summing to each support area);
+        covered (n,) bool: the patches under a cover (contact.Contacts.covered), clustered apart.
 
         P[c, k] is c_kk (alpha_k's integral, the atlas's effective area) times the share of D_k's
         area that lies in cell c, normalised so each row sums to 1."""
@@ -84,7 +89,8 @@ class Clusters:
         w = points.weight * (mass / np.maximum(area, 1e-300))[points.owner]
         sheets = np.asarray(atlas.sheet, np.int64)[points.owner]
         ijk, ok = grid.cells(points.points, sheets)
-        bins = normal_bin(points.normals)
+        cov = np.zeros(n, bool) if covered is None else np.asarray(covered, bool)
+        bins = 2 * normal_bin(points.normals) + cov[points.owner]
         # the first level from the points; each coarser one from the cells of the level below
         # (one representative point per cell: cells nest), so every level after the first
         # costs what its cells do, not what the points do
@@ -109,17 +115,26 @@ class Clusters:
             blocks.append(diags(1.0 / np.maximum(total, 1e-300)) @ mass_of)
             first.append(first[-1] + len(uniq))
         push = vstack(blocks).tocsc() if blocks else csc_matrix((0, n))
-        return cls(grid, top, keys, np.asarray(first, np.int64), push, float(far))
+        reach = None
+        if cov.any():
+            from .contact import COVER
+
+            reach = np.zeros(len(grid.cell))
+            radii = np.asarray(atlas.radii, np.float64)
+            np.maximum.at(reach, np.asarray(atlas.sheet, np.int64), COVER * radii)
+        return cls(grid, top, keys, np.asarray(first, np.int64), push, float(far), reach)
 
     @property
     def count(self) -> int:
         return int(self.first[-1])
 
-    def columns(self, points, sheets, normals, distance) -> tuple[np.ndarray, np.ndarray]:
+    def columns(self, points, sheets, normals, distance, rays=None) -> tuple[np.ndarray, np.ndarray]:
         """(far (k,) hit rows that link to a cluster, their cluster columns (k,)): hits at
         points (m, 3) on sheets (m,), normals (m, 3) facing the ray, at distance (m,) from where
         it left. A hit too near for the first level, off every grid, or on a cell no receiver
-        point lies in stays with alpha (not in far)."""
+        point lies in stays with alpha (not in far). A hit in a cell that holds both covered and
+        open patches is told which it is by a short ray along its normal (rays); without rays it
+        stays with alpha."""
         sheets = np.asarray(sheets, np.int64)
         ok = (sheets >= 0) & (sheets < len(self.grid.cell))
         s = np.where(ok, sheets, 0)
@@ -129,8 +144,9 @@ class Clusters:
         s = s[at]
         ijk, inside = self.grid.cells(np.asarray(points)[at], s)
         at, s, ijk = at[inside], s[inside], ijk[inside]
-        bins = normal_bin(np.asarray(normals)[at])
+        bins = 2 * normal_bin(np.asarray(normals)[at])
         level = np.minimum(want[at], self.top[s]).astype(np.int64)
+        pts = np.asarray(points)[at]
         # one pass per level present, the hits sorted by level (stable: in their order within it)
         order = np.argsort(level, kind="stable")
         lev = level[order]
@@ -140,8 +156,20 @@ class Clusters:
             if a == b:
                 continue  # no hit far enough
             group, lv = order[a:b], int(lev[a])
-            key = _key(self.grid.dims, s[group], ijk[group], bins[group], lv)
             table = self.keys[lv - FIRST_LEVEL]
+            open_key = _key(self.grid.dims, s[group], ijk[group], bins[group], lv)
+            has_open, has_covered = _has(table, open_key), _has(table, open_key + 1)
+            # a cell of covered patches only, or of open ones only, is what a hit there reads
+            key = np.where(has_covered & ~has_open, open_key + 1, open_key)
+            both = np.flatnonzero(has_open & has_covered)
+            if len(both):
+                if rays is None or self.reach is None:
+                    key[both] = -1
+                else:
+                    g = group[both]
+                    n, reach = np.asarray(normals)[at[g]], self.reach[s[g]]
+                    up = 1e-3 * reach
+                    key[both] += rays.occluded(pts[g] + n * up[:, None], n, reach - up)
             pos = np.minimum(np.searchsorted(table, key), max(len(table) - 1, 0))
             found = table[pos] == key if len(table) else np.zeros(len(group), bool)
             rows.append(at[group[found]])
@@ -149,6 +177,14 @@ class Clusters:
         if not rows:
             return np.zeros(0, np.int64), np.zeros(0, np.int64)
         return np.concatenate(rows), np.concatenate(cols)
+
+
+def _has(table: np.ndarray, key: np.ndarray) -> np.ndarray:
+    """(m,) bool: each key is in the sorted table."""
+    if len(table) == 0:
+        return np.zeros(len(key), bool)
+    pos = np.minimum(np.searchsorted(table, key), len(table) - 1)
+    return table[pos] == key
 
 
 def _key(dims, sheets, ijk, bins, level: int) -> np.ndarray:
@@ -160,4 +196,4 @@ def _key(dims, sheets, ijk, bins, level: int) -> np.ndarray:
     c = ijk >> level
     dd = d[sheets]
     lin = offset[sheets] + c[:, 0] + dd[:, 0] * (c[:, 1] + dd[:, 1] * c[:, 2])
-    return lin * BINS + bins
+    return lin * (2 * BINS) + bins  # bins: 2 x the normal's bin + covered

@@ -20,6 +20,7 @@ import numpy as np
 from scipy.sparse import coo_matrix, csc_matrix, csr_matrix
 
 from .clusters import Clusters
+from .contact import contacts
 from .geometry import tangent_frame
 from .overlap import alpha_at, patch_quadrature, ray_hits
 from .parallel import WORKERS, threaded
@@ -212,7 +213,7 @@ def gather_transport(
     _ = atlas.grid  # build the lookup once, before the threads need it
     offset = 1e-6 * index.surfaces.extent
     m = len(pts.owner)
-    clusters = Clusters.build(atlas, pts, far) if far > 0 else None
+    clusters = Clusters.build(atlas, pts, far, contacts(atlas, index).covered) if far > 0 else None
     step = max(1, chunk_rays // rays_per_point)
     starts = list(range(0, m, step))
 
@@ -229,7 +230,7 @@ def gather_transport(
         far_part = None
         if clusters is not None:
             facing = index.charts.normals[tri] * side[:, None]
-            linked, col = clusters.columns(points, index.sheet_of(tri, side), facing, t)
+            linked, col = clusters.columns(points, index.sheet_of(tri, side), facing, t, index.rays)
             far_part = _summed(ray_w[linked], owner[linked], col, (n, clusters.count))
             near = np.ones(len(hit), bool)
             near[linked] = False
