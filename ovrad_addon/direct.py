@@ -96,8 +96,10 @@ def emitter_samples(
         pick = np.searchsorted(np.cumsum(power) / total, (np.arange(count) + 0.5) / count)
         pick = np.minimum(pick, len(c) - 1)
         pts = c[pick].mean(axis=1)
-        # one sample stands for total / count of the power: on triangle t, for this much area
-        spacing = np.sqrt(total / count / radiance.sum(axis=1))
+        # one sample stands for total / count of the power: on triangle t, for this much area (a dim
+        # triangle's at most what an even spread of the samples over the area would give it: its
+        # near field is as faint as its light, and the search for near triangles stays local)
+        spacing = np.minimum(np.sqrt(total / count / radiance.sum(axis=1)), np.sqrt(area.sum() / count))
         return EmitterSamples(
             pts,
             normal[pick],
@@ -248,54 +250,69 @@ def _near_emitters(H, rs, P, N, src: EmitterSamples, d, g, pair, lit) -> None:
     np.add.at(H, rs[i], (exact * seen_fraction - sampled)[:, None] * src.triangle_radiance[tri[e]])
 
 
+NEAR_PAIRS = 1 << 20  # (point, near triangle) pairs _near_picked holds at once
+
+
 def _near_picked(H, rs, P, N, src: EmitterSamples, g, rays, eps: float) -> int:
     """_near_emitters for samples picked on the power of more triangles than samples (a subdivided
     panel, an emissive mesh): every emitting triangle within NEAR_EMITTER sample spacings of a point
     gives its exact unoccluded light x whether the point sees its centroid (one shadow ray each), in
-    place of what the samples picked on it gave. Returns the rays cast."""
+    place of what the samples picked on it gave. Points go in blocks of at most about NEAR_PAIRS
+    pairs. Returns the rays cast."""
     from scipy.spatial import cKDTree
 
     c = src.corners
     centroid = c.mean(axis=1)
     size = np.linalg.norm(c - centroid[:, None], axis=2).max(axis=1)
     tree = cKDTree(centroid)
-    found = tree.query_ball_point(P, NEAR_EMITTER * float(src.spacing.max()) + float(size.max()))
-    counts = np.fromiter((len(f) for f in found), np.int64, len(P))
+    reach = NEAR_EMITTER * float(src.spacing.max()) + float(size.max())
+    counts = np.asarray(tree.query_ball_point(P, reach, return_length=True), np.int64)
     if counts.sum() == 0:
         return 0
-    i = np.repeat(np.arange(len(P)), counts)
-    e = np.fromiter((t for f in found for t in f), np.int64, int(counts.sum()))
-    v = centroid[e] - P[i]
-    dist = np.linalg.norm(v, axis=1)
-    near = dist - size[e] < NEAR_EMITTER * src.spacing[e]
-    i, e, v, dist = i[near], e[near], v[near], dist[near]
-    if len(i) == 0:
-        return 0
-    exact = polygon_irradiance(P[i], N[i], c[e])
-    omega = v / np.maximum(dist, 1e-300)[:, None]
-    normal = triangle_geometry(c[e])[1]
-    facing = np.einsum("ij,ij->i", omega, normal)
-    ask = (np.einsum("ij,ij->i", omega, N[i]) > 0) & (exact > 0)
-    seen = np.ones(len(i), bool)  # a centroid under the point's horizon: the clipped part is seen
-    if ask.any():
-        origin = shadow_origin(P[i][ask], N[i][ask], omega[ask], eps)
-        seg = centroid[e][ask] - (eps * np.sign(facing[ask]))[:, None] * normal[ask] - origin
-        length = np.linalg.norm(seg, axis=1)
-        seen[ask] = ~rays.occluded(origin, seg / np.maximum(length, 1e-300)[:, None], length * (1 - 1e-6))
-    H_exact = (exact * seen)[:, None] * src.triangle_radiance[e]
-    np.add.at(H, rs[i], H_exact)
-    # less what the samples picked on those triangles gave (samples of a triangle are one run once
-    # sorted by triangle)
     order = np.argsort(src.pick, kind="stable")
     picked = src.pick[order]
-    lo, hi = np.searchsorted(picked, e, "left"), np.searchsorted(picked, e, "right")
-    many = hi - lo
-    if many.sum():
-        row = np.repeat(i, many)
-        first = np.repeat(lo - np.r_[0, np.cumsum(many)[:-1]], many)
-        sample = order[np.arange(int(many.sum())) + first]
-        np.add.at(H, rs[row], -g[row, sample][:, None] * src.radiance[sample])
-    return int(ask.sum())
+    cast, start, total = 0, 0, np.cumsum(counts)
+    while start < len(P):
+        before = total[start - 1] if start else 0
+        stop = max(start + 1, int(np.searchsorted(total, before + NEAR_PAIRS, "right")))
+        block = np.arange(start, min(stop, len(P)))
+        start = block[-1] + 1
+        if total[block[-1]] == before:
+            continue
+        found = tree.query_ball_point(P[block], reach)
+        k = np.fromiter((len(f) for f in found), np.int64, len(block))
+        i = np.repeat(block, k)
+        e = np.fromiter((t for f in found for t in f), np.int64, int(k.sum()))
+        v = centroid[e] - P[i]
+        dist = np.linalg.norm(v, axis=1)
+        near = dist - size[e] < NEAR_EMITTER * src.spacing[e]
+        i, e, v, dist = i[near], e[near], v[near], dist[near]
+        if len(i) == 0:
+            continue
+        exact = polygon_irradiance(P[i], N[i], c[e])
+        omega = v / np.maximum(dist, 1e-300)[:, None]
+        normal = triangle_geometry(c[e])[1]
+        facing = np.einsum("ij,ij->i", omega, normal)
+        ask = (np.einsum("ij,ij->i", omega, N[i]) > 0) & (exact > 0)
+        seen = np.ones(len(i), bool)  # a centroid under the point's horizon: the clipped part is seen
+        if ask.any():
+            origin = shadow_origin(P[i][ask], N[i][ask], omega[ask], eps)
+            seg = centroid[e][ask] - (eps * np.sign(facing[ask]))[:, None] * normal[ask] - origin
+            length = np.linalg.norm(seg, axis=1)
+            unit = seg / np.maximum(length, 1e-300)[:, None]
+            seen[ask] = ~rays.occluded(origin, unit, length * (1 - 1e-6))
+            cast += int(ask.sum())
+        np.add.at(H, rs[i], (exact * seen)[:, None] * src.triangle_radiance[e])
+        # less what the samples picked on those triangles gave (a triangle's samples are one run
+        # once sorted by triangle)
+        lo, hi = np.searchsorted(picked, e, "left"), np.searchsorted(picked, e, "right")
+        many = hi - lo
+        if many.sum():
+            row = np.repeat(i, many)
+            first = np.repeat(lo - np.r_[0, np.cumsum(many)[:-1]], many)
+            sample = order[np.arange(int(many.sum())) + first]
+            np.add.at(H, rs[row], -g[row, sample][:, None] * src.radiance[sample])
+    return cast
 
 
 def direct_irradiance(

@@ -200,6 +200,12 @@ def test_points_close_to_an_emitter_of_more_triangles_than_samples_get_its_exact
     # 280 % at 5 cm (a point right under a sample)
     assert max(v for (near, _), v in worst.items() if near > 0) < 0.015
     assert worst[0.0, 1e-2] > 0.3 and worst[0.0, 5e-2] > 1.0
+    # the near pairs go in blocks of points (memory): any block size gives the same light
+    monkeypatch.setattr(direct, "NEAR_EMITTER", 2.0)
+    whole, _ = emitter_irradiance(s, rays, np.ones(len(pt), bool), pts, nrm, 64)
+    monkeypatch.setattr(direct, "NEAR_PAIRS", 50)
+    blocks, _ = emitter_irradiance(s, rays, np.ones(len(pt), bool), pts, nrm, 64)
+    np.testing.assert_allclose(blocks, whole, rtol=1e-12, atol=0)
 
 
 @pytest.fixture(scope="module")
