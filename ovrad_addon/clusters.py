@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.sparse import coo_matrix, csc_matrix, diags, vstack
 
+from .contact import COVER, geometry_over
 from .lookup import PatchGrid
 
 FIRST_LEVEL = 2  # 4 lookup cells: about two patch radii (lookup.CELLS_PER_RADIUS)
@@ -117,8 +118,6 @@ class Clusters:
         push = vstack(blocks).tocsc() if blocks else csc_matrix((0, n))
         reach = None
         if cov.any():
-            from .contact import COVER
-
             reach = np.zeros(len(grid.cell))
             radii = np.asarray(atlas.radii, np.float64)
             np.maximum.at(reach, np.asarray(atlas.sheet, np.int64), COVER * radii)
@@ -166,10 +165,8 @@ class Clusters:
                 if rays is None or self.reach is None:
                     key[both] = -1
                 else:
-                    g = group[both]
-                    n, reach = np.asarray(normals)[at[g]], self.reach[s[g]]
-                    up = 1e-3 * reach
-                    key[both] += rays.occluded(pts[g] + n * up[:, None], n, reach - up)
+                    g, reach = group[both], self.reach[s[group[both]]]
+                    key[both] += geometry_over(rays, pts[g], np.asarray(normals)[at[g]], 1e-3 * reach, reach)
             pos = np.minimum(np.searchsorted(table, key), max(len(table) - 1, 0))
             found = table[pos] == key if len(table) else np.zeros(len(group), bool)
             rows.append(at[group[found]])

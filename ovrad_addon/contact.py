@@ -245,13 +245,21 @@ def covered(atlas, index, patches: np.ndarray, points: np.ndarray, lift: np.ndar
     """
     if len(patches) == 0:
         return np.zeros(0, bool)
-    n = atlas.normals[patches]
-    up = lift[patches]
-    reach = COVER * atlas.radii[patches] - up
-    out = np.zeros(len(patches), bool)
-    ok = reach > 0
+    return geometry_over(
+        index.rays, points, atlas.normals[patches], lift[patches], COVER * atlas.radii[patches]
+    )
+
+
+def geometry_over(
+    rays, points: np.ndarray, normals: np.ndarray, up: np.ndarray, reach: np.ndarray
+) -> np.ndarray:
+    """(m,) bool: a ray along the normal from `up` over each point meets something within `reach`
+    of it (False where reach <= up)."""
+    out = np.zeros(len(points), bool)
+    ok = reach > up
     if ok.any():
-        out[ok] = index.rays.occluded(points[ok] + n[ok] * up[ok, None], n[ok], reach[ok])
+        n = normals[ok]
+        out[ok] = rays.occluded(points[ok] + n * up[ok, None], n, reach[ok] - up[ok])
     return out
 
 

@@ -65,8 +65,9 @@ class EmitterSamples:
     corners: np.ndarray | None = None
     triangle_radiance: np.ndarray | None = None
     spacing: np.ndarray | None = None
-    # samples picked on the power of more emitting triangles than samples: each one's triangle (k,)
-    # (corners, triangle_radiance and spacing then hold every emitting triangle's)
+    # samples picked on the power of more emitting triangles than samples: each one's triangle (k,),
+    # non-decreasing (a triangle's samples are one run); corners, triangle_radiance and spacing
+    # then hold every emitting triangle's
     pick: np.ndarray | None = None
 
 
@@ -197,6 +198,7 @@ def emitter_irradiance(
         return H, 0
     eps = 1e-6 * surfaces.extent
     cast = 0
+    near = _PickedTriangles(src) if src.pick is not None else None
     step = max(1, _CHUNK_RAYS // k)
     for r0 in range(0, len(pts), step):
         rs = np.arange(r0, min(len(pts), r0 + step))
@@ -226,8 +228,8 @@ def emitter_irradiance(
         H[rs] += g @ src.radiance
         if src.run_start is not None:
             _near_emitters(H, rs, P, N, src, d, g, pair, lit)
-        elif src.pick is not None:
-            cast += _near_picked(H, rs, P, N, src, g, rays, eps)
+        elif near is not None:
+            cast += _near_picked(H, rs, P, N, src, near, g, rays, eps)
     return H, cast
 
 
@@ -253,24 +255,32 @@ def _near_emitters(H, rs, P, N, src: EmitterSamples, d, g, pair, lit) -> None:
 NEAR_PAIRS = 1 << 20  # (point, near triangle) pairs _near_picked holds at once
 
 
-def _near_picked(H, rs, P, N, src: EmitterSamples, g, rays, eps: float) -> int:
+class _PickedTriangles:
+    """The emitting triangles of picked samples, for _near_picked: centroids, their KD-tree, each
+    triangle's reach from its centroid (size) and unit normal; built once per emitter_irradiance."""
+
+    def __init__(self, src: EmitterSamples):
+        from scipy.spatial import cKDTree
+
+        c = src.corners
+        self.centroid = c.mean(axis=1)
+        self.size = np.linalg.norm(c - self.centroid[:, None], axis=2).max(axis=1)
+        self.normal = triangle_geometry(c)[1]
+        self.tree = cKDTree(self.centroid)
+        self.reach = NEAR_EMITTER * float(src.spacing.max()) + float(self.size.max())
+
+
+def _near_picked(H, rs, P, N, src: EmitterSamples, near_tris: _PickedTriangles, g, rays, eps: float) -> int:
     """_near_emitters for samples picked on the power of more triangles than samples (a subdivided
     panel, an emissive mesh): every emitting triangle within NEAR_EMITTER sample spacings of a point
     gives its exact unoccluded light x whether the point sees its centroid (one shadow ray each), in
     place of what the samples picked on it gave. Points go in blocks of at most about NEAR_PAIRS
     pairs. Returns the rays cast."""
-    from scipy.spatial import cKDTree
-
-    c = src.corners
-    centroid = c.mean(axis=1)
-    size = np.linalg.norm(c - centroid[:, None], axis=2).max(axis=1)
-    tree = cKDTree(centroid)
-    reach = NEAR_EMITTER * float(src.spacing.max()) + float(size.max())
+    c, tree, reach = src.corners, near_tris.tree, near_tris.reach
+    centroid, size = near_tris.centroid, near_tris.size
     counts = np.asarray(tree.query_ball_point(P, reach, return_length=True), np.int64)
     if counts.sum() == 0:
         return 0
-    order = np.argsort(src.pick, kind="stable")
-    picked = src.pick[order]
     cast, start, total = 0, 0, np.cumsum(counts)
     while start < len(P):
         before = total[start - 1] if start else 0
@@ -291,7 +301,7 @@ def _near_picked(H, rs, P, N, src: EmitterSamples, g, rays, eps: float) -> int:
             continue
         exact = polygon_irradiance(P[i], N[i], c[e])
         omega = v / np.maximum(dist, 1e-300)[:, None]
-        normal = triangle_geometry(c[e])[1]
+        normal = near_tris.normal[e]
         facing = np.einsum("ij,ij->i", omega, normal)
         ask = (np.einsum("ij,ij->i", omega, N[i]) > 0) & (exact > 0)
         seen = np.ones(len(i), bool)  # a centroid under the point's horizon: the clipped part is seen
@@ -303,14 +313,13 @@ def _near_picked(H, rs, P, N, src: EmitterSamples, g, rays, eps: float) -> int:
             seen[ask] = ~rays.occluded(origin, unit, length * (1 - 1e-6))
             cast += int(ask.sum())
         np.add.at(H, rs[i], (exact * seen)[:, None] * src.triangle_radiance[e])
-        # less what the samples picked on those triangles gave (a triangle's samples are one run
-        # once sorted by triangle)
-        lo, hi = np.searchsorted(picked, e, "left"), np.searchsorted(picked, e, "right")
+        # less what the samples picked on those triangles gave (a triangle's samples are one run)
+        lo, hi = np.searchsorted(src.pick, e, "left"), np.searchsorted(src.pick, e, "right")
         many = hi - lo
         if many.sum():
             row = np.repeat(i, many)
             first = np.repeat(lo - np.r_[0, np.cumsum(many)[:-1]], many)
-            sample = order[np.arange(int(many.sum())) + first]
+            sample = np.arange(int(many.sum())) + first
             np.add.at(H, rs[row], -g[row, sample][:, None] * src.radiance[sample])
     return cast
 
