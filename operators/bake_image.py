@@ -19,10 +19,9 @@ import numpy as np
 from bpy.props import EnumProperty, IntProperty, StringProperty
 
 from ..ovrad_addon import bake, names
-from ..ovrad_addon.direct import triangle_normals
 from ..ovrad_addon.errors import OvradError
 from ..ovrad_addon.gather import gather_unique
-from ..ovrad_addon.pipeline import bake_sides, irradiance_at, own_emission, radiance_at
+from ..ovrad_addon.pipeline import bake_normals, bake_sides, irradiance_at, own_emission, radiance_at
 from . import attributes, mesh_reader
 from .solution import load_solution
 
@@ -84,7 +83,7 @@ def sparse_gather(problem, radiosity, texels, width: int, light, step: int, size
 
     tri = texels.triangle
     sides = bake_sides(problem, tri)
-    normals = triangle_normals(problem.surfaces, tri) * sides[:, None]
+    normals = bake_normals(problem, tri, sides)
     own = own_emission(problem, light.emitters, light.emission_scale)
 
     def gather(k):

@@ -17,9 +17,8 @@ import numpy as np
 from bpy.props import EnumProperty, StringProperty
 
 from ..ovrad_addon.contact import split_corners
-from ..ovrad_addon.direct import triangle_normals
 from ..ovrad_addon.errors import OvradError
-from ..ovrad_addon.pipeline import bake_sides, irradiance_at, radiance_at
+from ..ovrad_addon.pipeline import bake_normals, bake_sides, irradiance_at, radiance_at
 from . import attributes, mesh_reader, solve
 from .solution import load_solution
 
@@ -64,10 +63,12 @@ class ReceiverBake:
         self.points = data.corners  # (T, 3, 3)
         self.triangles = first_triangle + np.arange(n_triangles)
         self.n_vertices, self.n_loops = counts[0], counts[2]
+        self.no_area = np.zeros(n_triangles, bool)  # triangles without area (set by reconstruct)
 
     def reconstruct(self, solution, quantity: str) -> np.ndarray:
         """(T, 3, 3) value at each triangle corner, negative ringing clamped to 0."""
         problem = solution.problem
+        self.no_area = problem.index.charts.chart[self.triangles] < 0
         sides = np.repeat(bake_sides(problem, self.triangles), 3)
         # A vertex on a chart's border lies exactly on the rim of the squares placed along it (and,
         # after float32 storage, just outside): step each corner a hair into its triangle.
@@ -83,7 +84,7 @@ class ReceiverBake:
         tris = np.repeat(self.triangles, 3)
         # ... except at a vertex on a contact line (a floor vertex where a wall stands on it): there
         # each corner gathers from inside its own triangle, lit or hidden as its face is.
-        normals = triangle_normals(problem.surfaces, tris) * sides[:, None]
+        normals = bake_normals(problem, tris, sides)
         split = split_corners(problem.index, self.tri_verts.ravel(), at, pts, normals)
         at = np.where(split[:, None], pts, at)
         fn = irradiance_at if quantity == "IRRADIANCE" else radiance_at
@@ -104,8 +105,10 @@ class ReceiverBake:
         return np.maximum(out, 0.0).reshape(-1, 3, 3)
 
     def domain_values(self, corner_values: np.ndarray, domain: str) -> np.ndarray:
-        """(n, 3) per vertex (angle-weighted mean of its corners) or per face corner (loop)."""
-        w = corner_angles(self.points).ravel()
+        """(n, 3) per vertex (angle-weighted mean of its corners) or per face corner (loop). Corners
+        of triangles without area weigh nothing where a vertex has others (three points on a line
+        have angles 0, 0 and pi: the middle one would outweigh the faces around it)."""
+        w = (corner_angles(self.points) * ~self.no_area[:, None]).ravel()
         target, n = (self.tri_verts, self.n_vertices) if domain == "POINT" else (self.tri_loops, self.n_loops)
         idx = target.ravel()
         den = np.bincount(idx, weights=w, minlength=n)
@@ -115,7 +118,7 @@ class ReceiverBake:
         for c in range(3):
             num = np.bincount(idx, weights=w * vals[:, c], minlength=n)
             plain = np.bincount(idx, weights=vals[:, c], minlength=n)
-            # Corners of degenerate triangles only (all angles 0): a plain mean.
+            # Corners of triangles without area only (all weights 0): a plain mean.
             out[:, c] = np.where(den > 0, num / np.maximum(den, 1e-300), plain / np.maximum(cnt, 1))
         return out
 

@@ -362,7 +362,7 @@ def _small_charts(index: SurfaceIndex, settings: AtlasSettings) -> np.ndarray:
         return np.zeros(index.charts.count, bool)
     spacing = np.full(index.charts.count, np.inf)
     np.minimum.at(spacing, index.sheet_chart, _sheet_spacing(index, settings))
-    return clutter_mod.small_charts(index.charts.chart_areas, spacing) & np.isfinite(spacing)
+    return clutter_mod.small_charts(index.charts.chart_areas, spacing, index.flat) & np.isfinite(spacing)
 
 
 COUNT_TOLERANCE = 0.1  # a patch count this close to the target needs no second correction

@@ -537,12 +537,26 @@ def solve(
 def bake_sides(problem: Problem, triangles) -> np.ndarray:
     """(m,) int64 +1 or -1: the side of each triangle a bake reconstructs, the front where the
     front sheet of its chart holds patches, else the back (an open mesh whose patches lie on its
-    back only). One rule for every bake point of a triangle, so vertices and texels agree."""
+    back only); the front of a triangle without area (bake_normals). One rule for every bake point
+    of a triangle, so vertices and texels agree."""
     tri = np.asarray(triangles, np.int64)
     index = problem.index
     occupied = np.bincount(problem.atlas.sheet, minlength=len(index.sheet_chart)) > 0
     front = index.sheet_of(tri, np.ones(len(tri), np.int64))
-    return np.where((front >= 0) & occupied[np.maximum(front, 0)], 1, -1).astype(np.int64)
+    lit_front = ((front >= 0) & occupied[np.maximum(front, 0)]) | (index.charts.chart[tri] < 0)
+    return np.where(lit_front, 1, -1).astype(np.int64)
+
+
+def bake_normals(problem: Problem, triangles, sides) -> np.ndarray:
+    """(m, 3) unit normals a bake sees triangles (m,) by, from their sides (m,) (bake_sides). A
+    triangle without area (three points on a line) has no normal of its own: like Blender, which
+    shades such a face as facing +Z, its points are lit as a point facing +Z (not left black: a
+    vertex of zero-area triangles only is still a vertex of the mesh, and Cycles bakes it lit)."""
+    tri = np.asarray(triangles, np.int64)
+    normals = triangle_normals(problem.surfaces, tri) * np.asarray(sides)[:, None]
+    none = problem.index.charts.chart[tri] < 0
+    normals[none] = (0.0, 0.0, 1.0)
+    return normals
 
 
 def _at_points(
@@ -570,7 +584,7 @@ def _at_points(
         return tri, a, radiosity, None
     if first_shot.shape != radiosity.shape:
         raise OvradError("the first shot does not match the radiosity: solve again")
-    normals = triangle_normals(problem.surfaces, tri) * side[:, None]
+    normals = bake_normals(problem, tri, side)
     seen = None
     if light.sky is not None:  # bake chunks come here for every point: nothing to do without a sky
         seen = sky_patches(problem, light, radiosity - patch_emission(problem, light.emission_scale))
@@ -597,7 +611,7 @@ def _at_points(
                 near = NearField(near_light, radiosity - first_shot - coeffs, coeffs - own, sky_seen=seen)
             at = pts if gather_points is None else np.asarray(gather_points, np.float64).reshape(-1, 3)
             H = H + gather_unique(problem, radiosity, own, at, normals, light.gather_rays, tri, near=near)
-        covered = index.sheet_of(tri, side) >= 0
+        covered = (index.sheet_of(tri, side) >= 0) | (index.charts.chart[tri] < 0)  # see bake_normals
     # --- end of final gather
     return tri, a, coeffs, np.where(covered[:, None], H, 0.0)
 

@@ -175,3 +175,24 @@ def test_undo_takes_back_a_solve_and_a_bake(box):
     bpy.ops.ed.undo()
     atlas = next(o for o in bpy.data.objects if o.get("ovrad_source") == "Box")
     assert "ovrad_radiosity" not in atlas.data.attributes
+
+
+def test_corners_of_a_triangle_without_area_do_not_darken_the_vertex_they_share(ovrad):
+    """Three points on a line make angles 0, 0 and pi: weighted by angle, the middle corner of such
+    a sliver outweighed the real faces around its vertex. It weighs nothing there now; a vertex of
+    slivers only still gets their plain mean."""
+    bake = ovrad.operators.bake_vertex.ReceiverBake.__new__(ovrad.operators.bake_vertex.ReceiverBake)
+    # vertex 0 is a corner of a right triangle (0, 1, 2) and the middle of the line (3, 0, 4);
+    # vertices 3 and 4 belong to the line only
+    pos = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [-1, -1, 0], [1, 1, 0]], float)
+    bake.tri_verts = np.array([[0, 1, 2], [3, 0, 4]])
+    bake.tri_loops = np.arange(6).reshape(2, 3)
+    bake.points = pos[bake.tri_verts]
+    bake.n_vertices, bake.n_loops = 5, 6
+    bake.no_area = np.array([False, True])
+    corner = np.array([[1.0, 1.0, 1.0], [0.2, 0.0, 0.4]])[:, :, None] * np.ones(3)
+    got = bake.domain_values(corner, "POINT")[:, 0]
+    np.testing.assert_allclose(got, [1.0, 1.0, 1.0, 0.2, 0.4])
+    # without the rule (all three corners weighed by angle): vertex 0 read (pi/2 + 0) / (pi/2 + pi)
+    bake.no_area = np.array([False, False])
+    assert bake.domain_values(corner, "POINT")[0, 0] < 0.4

@@ -36,3 +36,35 @@ def test_bakes_use_the_front_where_it_has_patches_else_the_back():
     assert np.all(bake_sides(locate(s, atlas.select(~back)), triangles) == 1)
     # Patches on the back only (an open mesh seen from behind): the back, on every triangle.
     assert np.all(bake_sides(locate(s, atlas.select(back)), triangles) == -1)
+
+
+def test_a_triangle_without_area_is_baked_lit_as_blender_shades_it_facing_up():
+    """Three points on a line (a zero-area triangle, common in messy meshes) have no normal of their
+    own; Blender gives such a face +Z. Its bake points must get the light of a point facing +Z (a
+    point lamp's closed form: the floor lies under them, out of their view), not 0 (they were left black:
+    no sheet holds them, and the bake read their back)."""
+    from dataclasses import replace
+
+    from reference import analytic
+
+    from ovrad_addon.lights import Lamp
+    from ovrad_addon.pipeline import SolveSettings, direct_light, irradiance_at, prepare, solve
+
+    floor_v, floor_t = scenes.plane(size=4.0, n=4)
+    line = np.array([[0.25, -0.125, 0.5], [0.375, 0.0, 0.625], [0.5, 0.125, 0.75]])  # exactly on a line
+    v, t, obj = scenes.merge([(floor_v - [2.0, 2.0, 0.0], floor_t), (line, np.array([[0, 1, 2]]))])
+    s = Surfaces.from_arrays(v, t, object_index=obj, reflectance=[0.5] * 3)
+    settings = SolveSettings(gather_rays=64)
+    problem = prepare(s, build_atlas(s, AtlasSettings(patch_count=100)), settings)
+    degenerate = len(t) - 1
+    assert problem.index.charts.chart[degenerate] < 0  # no chart, no sheet, no patch
+    lamp = Lamp("POINT", position=(0.1, 0.3, 1.6), power=400.0)
+    state = solve(problem, lamps=(lamp,), settings=settings)
+    light = replace(direct_light(problem, (lamp,), settings), gather_rays=64)
+    tri = np.full(3, degenerate)
+    sides = bake_sides(problem, tri)
+    assert np.all(sides == 1)
+    got = np.pi * irradiance_at(problem, state.radiosity, line, tri, sides, state.first_shot, light)[:, 0]
+    up = np.tile([0.0, 0.0, 1.0], (3, 1))
+    want = analytic.point_lamp_irradiance(400.0, (0.1, 0.3, 1.6), line, up)
+    np.testing.assert_allclose(got, want, rtol=1e-3)
