@@ -18,7 +18,7 @@ from bpy.props import EnumProperty, StringProperty
 
 from ..ovrad_addon.contact import split_corners
 from ..ovrad_addon.errors import OvradError
-from ..ovrad_addon.pipeline import bake_normals, bake_sides, irradiance_at, radiance_at
+from ..ovrad_addon.pipeline import bake_normals, bake_sides, irradiance_at, radiance_at, without_area
 from . import attributes, mesh_reader, solve
 from .solution import load_solution
 
@@ -68,7 +68,7 @@ class ReceiverBake:
     def reconstruct(self, solution, quantity: str) -> np.ndarray:
         """(T, 3, 3) value at each triangle corner, negative ringing clamped to 0."""
         problem = solution.problem
-        self.no_area = problem.index.charts.chart[self.triangles] < 0
+        self.no_area = without_area(problem, self.triangles)
         sides = np.repeat(bake_sides(problem, self.triangles), 3)
         # A vertex on a chart's border lies exactly on the rim of the squares placed along it (and,
         # after float32 storage, just outside): step each corner a hair into its triangle.

@@ -534,6 +534,11 @@ def solve(
     )
 
 
+def without_area(problem: Problem, triangles) -> np.ndarray:
+    """(m,) bool: triangles (m,) without area (no chart: three points on a line; see bake_normals)."""
+    return problem.index.charts.chart[np.asarray(triangles, np.int64)] < 0
+
+
 def bake_sides(problem: Problem, triangles) -> np.ndarray:
     """(m,) int64 +1 or -1: the side of each triangle a bake reconstructs, the front where the
     front sheet of its chart holds patches, else the back (an open mesh whose patches lie on its
@@ -543,7 +548,7 @@ def bake_sides(problem: Problem, triangles) -> np.ndarray:
     index = problem.index
     occupied = np.bincount(problem.atlas.sheet, minlength=len(index.sheet_chart)) > 0
     front = index.sheet_of(tri, np.ones(len(tri), np.int64))
-    lit_front = ((front >= 0) & occupied[np.maximum(front, 0)]) | (index.charts.chart[tri] < 0)
+    lit_front = ((front >= 0) & occupied[np.maximum(front, 0)]) | without_area(problem, tri)
     return np.where(lit_front, 1, -1).astype(np.int64)
 
 
@@ -554,8 +559,7 @@ def bake_normals(problem: Problem, triangles, sides) -> np.ndarray:
     vertex of zero-area triangles only is still a vertex of the mesh, and Cycles bakes it lit)."""
     tri = np.asarray(triangles, np.int64)
     normals = triangle_normals(problem.surfaces, tri) * np.asarray(sides)[:, None]
-    none = problem.index.charts.chart[tri] < 0
-    normals[none] = (0.0, 0.0, 1.0)
+    normals[without_area(problem, tri)] = (0.0, 0.0, 1.0)
     return normals
 
 
@@ -611,7 +615,7 @@ def _at_points(
                 near = NearField(near_light, radiosity - first_shot - coeffs, coeffs - own, sky_seen=seen)
             at = pts if gather_points is None else np.asarray(gather_points, np.float64).reshape(-1, 3)
             H = H + gather_unique(problem, radiosity, own, at, normals, light.gather_rays, tri, near=near)
-        covered = (index.sheet_of(tri, side) >= 0) | (index.charts.chart[tri] < 0)  # see bake_normals
+        covered = (index.sheet_of(tri, side) >= 0) | without_area(problem, tri)  # see bake_normals
     # --- end of final gather
     return tri, a, coeffs, np.where(covered[:, None], H, 0.0)
 
