@@ -87,7 +87,8 @@ def load_solution(context) -> Solution:
 def _stored_direct(inputs: SolveInputs, problem: Problem) -> tuple[np.ndarray | None, DirectLight | None]:
     """The first shot stored by the last solve and the direct light to compute at bake points;
     raises OvradError when the lamps, emission or world changed since (the split would not match)."""
-    parts, key = [], light_key(inputs.surfaces, inputs.lamps, inputs.sky)
+    parts, sky, escaped = [], [], []
+    key = light_key(inputs.surfaces, inputs.lamps, inputs.sky)
     for name, count in zip(inputs.atlas_names, inputs.counts, strict=True):
         obj = bpy.data.objects[name]
         if names.DIRECT not in obj.data.attributes:
@@ -98,5 +99,15 @@ def _stored_direct(inputs: SolveInputs, problem: Problem) -> tuple[np.ndarray | 
                 "before baking"
             )
         parts.append(attributes.read_point_attribute(obj.data, names.DIRECT)[:count, :3])
+        if names.SKY in obj.data.attributes:
+            sky.append(attributes.read_point_attribute(obj.data, names.SKY)[:count] != 0)
+        escaped.append(obj.get(names.PROP_ESCAPED))
     first_shot = np.pi * np.concatenate(parts).astype(np.float64)
-    return first_shot, direct_light(problem, inputs.lamps, inputs.settings, sky=inputs.sky)
+    light = direct_light(problem, inputs.lamps, inputs.settings, sky=inputs.sky)
+    # What the solve's transport knew of the sky, stored with the atlases: the bakes then cast sky
+    # rays where it did, also after the file was reopened (no transport in memory to ask).
+    if light.sky is not None and escaped and all(isinstance(e, int) for e in escaped) and max(escaped) == 0:
+        light = replace(light, sky=None)  # a closed scene: as pipeline.sky_hidden decides
+    elif light.sky is not None and len(sky) == len(parts):
+        light = replace(light, sky_patches=np.concatenate(sky))
+    return first_shot, light

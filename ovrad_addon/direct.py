@@ -31,7 +31,9 @@ class DirectLight:
     rays (emitters (T,) bool over surfaces.triangles), their emission scale, samples per point;
     gather_rays: final-gather rays per bake point for the indirect light (gather.py), 0 = off;
     near_field: hits closer than a patch radius computed where they land (gather.NearField);
-    sky: the world's light (sky.py), None = none; sky_samples: its directions (one fixed set)."""
+    sky: the world's light (sky.py), None = none; sky_samples: its directions (one fixed set);
+    sky_patches (n,) bool: the patches where bake points and near gather hits cast sky rays, as
+    the solve decided and stored them (pipeline.bake_sky); None: decide from the problem."""
 
     lamps: tuple[Lamp, ...] = ()
     emitters: np.ndarray | None = None
@@ -41,6 +43,7 @@ class DirectLight:
     near_field: bool = False
     sky: Sky | None = None
     sky_samples: int = 1024
+    sky_patches: np.ndarray | None = None
 
 
 def triangle_normals(surfaces: Surfaces, triangles: np.ndarray) -> np.ndarray:

@@ -18,6 +18,7 @@ OBJECT = "ovrad_object"  # INT, environment atlas only: the surfaces object each
 RANDOM = "ovrad_random"  # FLOAT in [0, 1), a stable random value per patch (display)
 RADIOSITY = "ovrad_radiosity"  # FLOAT_COLOR, solved radiance B/pi
 DIRECT = "ovrad_direct"  # FLOAT_COLOR, the first shot's share of it (direct light of lamps and emitters)
+SKY = "ovrad_sky"  # INT, 1 where bake points and near gather hits cast sky rays (pipeline.bake_sky), by Solve
 
 # EDGE attribute on an atlas object: one edge between each two overlapping patches (kept_overlaps.py).
 OVERLAP_C = "ovrad_c"  # FLOAT2, (C[i, j], C[j, i]) of the edge's vertices i < j (overlap.overlap_matrix's C)
@@ -27,6 +28,8 @@ PROP_SOURCE = "ovrad_source"  # name of the source mesh object
 PROP_BETA = "ovrad_beta"  # beta profile the atlas was built with ("box" or "smooth")
 PROP_VERSION = "ovrad_atlas_version"
 PROP_LIGHT_KEY = "ovrad_light_key"  # hash of the lamps and emission the stored solve used
+# transport rays of the stored solve that left the scene (0: closed, the bakes leave the sky out)
+PROP_ESCAPED = "ovrad_escaped"
 PROP_ENVIRONMENT = "ovrad_environment_key"  # on the environment atlas: fingerprint of its surfaces
 # On an atlas object's mesh: the key of the overlaps kept on its edges (kept_overlaps.overlap_key).
 PROP_OVERLAP_KEY = "ovrad_overlap_key"

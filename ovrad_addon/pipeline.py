@@ -426,6 +426,21 @@ def sky_patches(
     return seen & (~known | (rho <= 1e-6) | ~(sky < SKY_SHARE * received))
 
 
+def bake_sky(problem: Problem, light: DirectLight, radiosity: np.ndarray) -> np.ndarray | None:
+    """(n,) bool: the patches where bake points and near gather hits cast sky rays, given the
+    solved radiosity (n, 3); None: all of them, or the light has no sky (then none casts any).
+
+    The solve decides it (sky_patches: which patches' transport rays escaped, and how much sky light
+    that is against the light they reflect) and stores it with the atlas (DirectLight.sky_patches):
+    a bake after the file is reopened has no transport to ask, and would otherwise cast sky rays
+    everywhere (four times the bake time of the production room under a grey world)."""
+    if light.sky is None:
+        return None
+    if light.sky_patches is not None:
+        return np.asarray(light.sky_patches, bool)
+    return sky_patches(problem, light, radiosity - patch_emission(problem, light.emission_scale))
+
+
 def direct_light(
     problem: Problem,
     lamps: tuple[Lamp, ...] = (),
@@ -589,9 +604,7 @@ def _at_points(
     if first_shot.shape != radiosity.shape:
         raise OvradError("the first shot does not match the radiosity: solve again")
     normals = bake_normals(problem, tri, side)
-    seen = None
-    if light.sky is not None:  # bake chunks come here for every point: nothing to do without a sky
-        seen = sky_patches(problem, light, radiosity - patch_emission(problem, light.emission_scale))
+    seen = bake_sky(problem, light, radiosity)
     sky_at = may_see_sky(a, seen)
     H = direct_irradiance(problem.surfaces, problem.index.rays, light, pts, normals, sky_at)[0]
     covered = np.asarray(a.sum(axis=1)).ravel() > 0
