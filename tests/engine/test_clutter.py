@@ -176,3 +176,32 @@ def test_a_small_curved_piece_is_clutter_so_no_part_of_it_hides_from_its_patch(m
     # curved as flat: one disk per side of each strip, whose support misses the hidden flanks
     # (measured: 67 % of the strips' area held)
     assert held[1] < 0.9
+
+
+def test_a_patch_far_larger_than_its_piece_still_receives_and_sends_light():
+    """Bent leaves a little over the clutter threshold get a disk of their own, about twice their
+    size: the transport's coarse rule (two rings of points at 46 and 89 % of the radius) missed all
+    but three of them, which then received no light, sent none, and broke the furnace everywhere
+    (leaves at E alone, 6.28 against 62.8; the room 49.9-54.7). Finer rings find every one."""
+    rng = np.random.default_rng(2)
+    parts, objs = list(scenes.box_faces((-1, -1, 0), (1, 1, 2), inward=True)), [0] * 6
+    for k in range(12):
+        at = np.array([-0.7 + 0.45 * (k % 4), -0.5 + 0.5 * ((k // 4) % 3), 0.6 + 0.1 * (k % 3)])
+        v, t = scenes.bent_leaf(rng, 0.08, 0.3, 3)
+        parts.append((v + at, t))
+        objs.append(1)
+    v, t, o = scenes.merge(parts, obj=objs)
+    room = Surfaces.from_arrays(
+        v, t, o, reflectance=[0.9] * 3, emission=[2.0] * 3, object_names=["room", "leaves"]
+    )
+    atlas = build_atlas(room, AtlasSettings(patch_count=300))
+    problem = prepare(room, atlas)
+    leaves = problem.atlas.source_object == 1
+    assert leaves.sum() == 24 and not np.any(problem.atlas.shapes[leaves] == names.SHAPE_BALL)
+    assert np.all(problem.atlas.radii[leaves] > 2 * 0.08)  # each disk reaches well past its leaf
+    points = np.bincount(problem.transport.points.owner, minlength=len(problem.atlas))
+    supported = problem.atlas.support_area > 0
+    assert np.all(points[supported] > 0)
+    B = solve(problem, settings=SolveSettings(tolerance=1e-7)).radiosity
+    furnace = np.pi * 2.0 / (1.0 - 0.9)  # B = E / (1 - rho), E the exitance pi x 2
+    assert np.allclose(B[supported], furnace, rtol=1e-5)
