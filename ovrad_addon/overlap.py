@@ -548,14 +548,40 @@ def reconstruct(alpha: csr_matrix, values: np.ndarray) -> np.ndarray:
     return alpha @ np.asarray(values, np.float64)
 
 
+FINER_RINGS = 4  # rings grow this many times per pass for supports a coarse rule missed
+MAX_RINGS = 256
+
+
+def support_points(atlas, index, q: int, rings: int) -> Quadrature:
+    """A coarse rule (q, rings) on every patch's support, its points on the support only (weight
+    > 0; owner: the patch; no neighbour slots). A patch much larger than its support (a disk on a
+    leaf a fifth of its size, a square on a small cube's face) may have no coarse point on it: its
+    rings are made FINER_RINGS times finer until some are (up to MAX_RINGS), as C's rule found it.
+    Without points a patch got no transport receivers, so no light, and none of the per-patch
+    means (emission, albedo): 1 365 of the production room's 9 478 patches at a target of 8 000
+    had none, and its leaves baked 11 % too dark."""
+    ids = np.arange(len(atlas))
+    quad = patch_quadrature(atlas, index, ids, q, rings=rings)
+    on = quad.weights > 0
+    parts = [Quadrature(*(getattr(quad, f.name)[on] for f in fields(Quadrature)))]
+    missing = (np.bincount(quad.owner[on], minlength=len(atlas)) == 0) & (atlas.support_area > 0)
+    while np.any(missing) and rings < MAX_RINGS:
+        rings *= FINER_RINGS
+        where = ids[missing]
+        finer = patch_quadrature(atlas, index, where, q, rings=rings)
+        on = finer.weights > 0
+        finer = Quadrature(*(getattr(finer, f.name)[on] for f in fields(Quadrature)))
+        parts.append(replace(finer, owner=where[finer.owner]))
+        missing[where[finer.owner]] = False
+    return Quadrature(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(Quadrature)))
+
+
 def patch_average(atlas, index, per_triangle: np.ndarray, q: int = 4) -> np.ndarray:
     """Area-weighted mean over each patch's support of a per-triangle quantity (T, c) -> (n, c)."""
     vals = np.asarray(per_triangle, np.float64)
-    ids = np.arange(len(atlas))
-    quad = patch_quadrature(atlas, index, ids, q, rings=max(q // 2, 1))
-    on = quad.weights > 0
-    w = quad.weights[on]
+    quad = support_points(atlas, index, q, max(q // 2, 1))
+    w = quad.weights
     acc = np.zeros((len(atlas), vals.shape[1]))
-    np.add.at(acc, quad.owner[on], vals[quad.triangle[on]] * w[:, None])
-    area = np.bincount(quad.owner[on], weights=w, minlength=len(atlas))
+    np.add.at(acc, quad.owner, vals[quad.triangle] * w[:, None])
+    area = np.bincount(quad.owner, weights=w, minlength=len(atlas))
     return acc / np.maximum(area, 1e-300)[:, None]
