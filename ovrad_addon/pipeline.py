@@ -433,7 +433,7 @@ def bake_sky(problem: Problem, light: DirectLight, radiosity: np.ndarray) -> np.
     The solve decides it (sky_patches: which patches' transport rays escaped, and how much sky light
     that is against the light they reflect) and stores it with the atlas (DirectLight.sky_patches):
     a bake after the file is reopened has no transport to ask, and would otherwise cast sky rays
-    everywhere (four times the bake time of the production room under a grey world)."""
+    everywhere (3.6 times the bake time of the production room under a grey world)."""
     if light.sky is None:
         return None
     if light.sky_patches is not None:
