@@ -561,19 +561,26 @@ def support_points(atlas, index, q: int, rings: int) -> Quadrature:
     means (emission, albedo): 1 365 of the production room's 9 478 patches at a target of 8 000
     had none, and its leaves baked 11 % too dark."""
     ids = np.arange(len(atlas))
-    quad = patch_quadrature(atlas, index, ids, q, rings=rings)
-    on = quad.weights > 0
-    parts = [Quadrature(*(getattr(quad, f.name)[on] for f in fields(Quadrature)))]
-    missing = (np.bincount(quad.owner[on], minlength=len(atlas)) == 0) & (atlas.support_area > 0)
+    parts = [_on_support(patch_quadrature(atlas, index, ids, q, rings=rings))]
+    missing = (np.bincount(parts[0].owner, minlength=len(atlas)) == 0) & (atlas.support_area > 0)
     while np.any(missing) and rings < MAX_RINGS:
         rings *= FINER_RINGS
         where = ids[missing]
-        finer = patch_quadrature(atlas, index, where, q, rings=rings)
-        on = finer.weights > 0
-        finer = Quadrature(*(getattr(finer, f.name)[on] for f in fields(Quadrature)))
+        finer = _on_support(patch_quadrature(atlas, index, where, q, rings=rings))
         parts.append(replace(finer, owner=where[finer.owner]))
         missing[where[finer.owner]] = False
+    if len(parts) == 1:
+        return parts[0]
     return Quadrature(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(Quadrature)))
+
+
+def _on_support(quad: Quadrature) -> Quadrature:
+    """The rule points of quad that lie on the supports (weight > 0). Field by field, each full
+    array released as soon as it is cut (100 k patches: the full rule is about 0.5 GB)."""
+    arrays = {f.name: getattr(quad, f.name) for f in fields(Quadrature)}
+    del quad  # the caller passes a temporary: these are now the only references
+    on = arrays["weights"] > 0
+    return Quadrature(**{name: arrays.pop(name)[on] for name in list(arrays)})
 
 
 def patch_average(atlas, index, per_triangle: np.ndarray, q: int = 4) -> np.ndarray:
