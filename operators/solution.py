@@ -103,11 +103,11 @@ def _stored_direct(inputs: SolveInputs, problem: Problem) -> tuple[np.ndarray | 
             sky.append(attributes.read_point_attribute(obj.data, names.SKY)[:count] != 0)
         escaped.append(obj.get(names.PROP_ESCAPED))
     first_shot = np.pi * np.concatenate(parts).astype(np.float64)
-    light = direct_light(problem, inputs.lamps, inputs.settings, sky=inputs.sky)
-    # What the solve's transport knew of the sky, stored with the atlases: the bakes then cast sky
-    # rays where it did, also after the file was reopened (no transport in memory to ask).
-    if light.sky is not None and escaped and all(isinstance(e, int) for e in escaped) and max(escaped) == 0:
-        light = replace(light, sky=None)  # a closed scene: as pipeline.sky_hidden decides
-    elif light.sky is not None and len(sky) == len(parts):
-        light = replace(light, sky_patches=np.concatenate(sky))
+    # What the solve's transport knew of the sky, stored with the atlases (one solve wrote them
+    # all): the bakes cast sky rays where it did, also after the file was reopened.
+    stored = escaped[0] if len(set(escaped)) == 1 and isinstance(escaped[0], int) else None
+    where = np.concatenate(sky) if len(sky) == len(parts) else None
+    light = direct_light(
+        problem, inputs.lamps, inputs.settings, sky=inputs.sky, escaped=stored, sky_patches=where
+    )
     return first_shot, light

@@ -378,13 +378,16 @@ def sampled_emitters(problem: Problem, emission_scale: float = 1.0) -> np.ndarra
     return on if small and emission_scale > 0 else np.zeros_like(on)
 
 
-def sky_hidden(problem: Problem) -> bool:
+def sky_hidden(problem: Problem, escaped: int | None = None) -> bool:
     """No transport ray escaped the scene: no receiver sees out of it (a closed room), so a sky
     lights nothing. Its share of the hemisphere, averaged over the receivers, is below about one
     over the rays cast; leaving it out saves every sky ray of the first shot and the bakes (1 024
-    per baked point and 256 per near gather hit: minutes on a production room under a world)."""
+    per baked point and 256 per near gather hit: minutes on a production room under a world).
+    escaped: the count a solve stored, for a problem without its transport (a reopened file)."""
     t = problem.transport
-    return t is not None and t.escaped == 0
+    if t is not None:
+        return t.escaped == 0
+    return escaped == 0
 
 
 SKY_SHARE = 0.01  # a patch whose sky light is estimated below this share of all it receives
@@ -447,10 +450,13 @@ def direct_light(
     settings: SolveSettings = SolveSettings(),
     emission_scale: float = 1.0,
     sky: Sky | None = None,
+    escaped: int | None = None,
+    sky_patches: np.ndarray | None = None,
 ) -> DirectLight:
     """The light a solve shoots first, as bake points compute it for themselves (a sky only
-    where it can reach: sky_hidden)."""
-    if sky is not None and sky_hidden(problem):
+    where it can reach: sky_hidden). escaped, sky_patches: what a solve stored of the sky, for a
+    problem without its transport (sky_hidden; DirectLight.sky_patches, bake_sky)."""
+    if sky is not None and sky_hidden(problem, escaped):
         sky = None
     return DirectLight(
         tuple(lamps),
@@ -461,6 +467,7 @@ def direct_light(
         near_field=settings.near_field,
         sky=sky if sky is not None and sky.emits else None,
         sky_samples=settings.bake_sky_samples,
+        sky_patches=sky_patches,
     )
 
 
