@@ -194,3 +194,45 @@ def _key(dims, sheets, ijk, bins, level: int) -> np.ndarray:
     dd = d[sheets]
     lin = offset[sheets] + c[:, 0] + dd[:, 0] * (c[:, 1] + dd[:, 1] * c[:, 2])
     return lin * (2 * BINS) + bins  # bins: 2 x the normal's bin + covered
+
+
+def pooled_fraction(atlas, escaped: np.ndarray, cast: np.ndarray, want: int) -> np.ndarray:
+    """(n,) each patch's escaped share of its rays, pooled over the cell of patches around it
+    where it cast fewer than `want` rays itself: the finest cell of its sheet's lookup grid,
+    coarsened by powers of two (and split by normal bin, as the clusters are), whose patches
+    cast at least `want` between them. NaN where even its whole sheet cast fewer.
+
+    At 100 000 patches each casts some 70 transport rays: too few to tell whether it sees the
+    sky, and a test of SKY_TEST_RAYS rays from each would cost more than the transport
+    (transport._sky_test). Its cell's neighbours, facing the same way, share most of its view;
+    a patch none of whose cell's `want` rays escaped sees, on the cell's average, under about
+    1 / want of sky. A patch whose own rays escaped is in a cell whose did: it keeps the sky."""
+    n = len(escaped)
+    cast = np.asarray(cast, np.float64)
+    escaped = np.asarray(escaped, np.float64)
+    fraction = np.where(cast >= want, escaped / np.maximum(cast, 1.0), np.nan)
+    todo = np.flatnonzero(np.isnan(fraction) & (cast > 0))
+    if n == 0 or len(todo) == 0:
+        return fraction
+    grid = atlas.grid
+    sheets = np.asarray(atlas.sheet, np.int64)
+    ijk, ok = grid.cells(atlas.centers, sheets)
+    top = np.maximum(np.ceil(np.log2(np.max(grid.dims - 1, axis=1) + 1.0)).astype(np.int64), FIRST_LEVEL)
+    bins = 2 * normal_bin(atlas.normals)
+    use = np.flatnonzero(ok & (cast > 0))
+    for level in range(FIRST_LEVEL, int(top.max(initial=FIRST_LEVEL)) + 1):
+        lv = np.minimum(level, top[sheets[use]])  # a sheet past its top stays one cell
+        key = np.zeros(len(use), np.int64)
+        for v in np.unique(lv):
+            at = lv == v
+            key[at] = _key(grid.dims, sheets[use[at]], ijk[use[at]], bins[use[at]], int(v))
+        # keys of different levels can collide: tell them apart by the level
+        uniq, col = np.unique(np.stack([lv, key], 1), axis=0, return_inverse=True)
+        col = col.ravel()
+        rays = np.bincount(col, weights=cast[use], minlength=len(uniq))
+        out = np.bincount(col, weights=escaped[use], minlength=len(uniq))
+        fill = np.isnan(fraction[use]) & (rays[col] >= want)
+        fraction[use[fill]] = out[col[fill]] / rays[col[fill]]
+        if not np.isnan(fraction[use]).any():
+            break
+    return fraction

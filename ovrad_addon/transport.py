@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.sparse import coo_matrix, csc_matrix, csr_matrix
 
-from .clusters import Clusters
+from .clusters import Clusters, pooled_fraction
 from .contact import contacts
 from .geometry import tangent_frame
 from .overlap import alpha_at, ray_hits, support_points
@@ -64,8 +64,9 @@ class Transport:
     points: ReceiverPoints
     rays: int
     escaped: int = -1  # -1: not counted
-    # (n,) the fraction of each patch's rays that escaped: its cosine-weighted share of the sky;
-    # NaN where it cast fewer than SKY_TEST_RAYS (too few to tell); None: unknown
+    # (n,) the fraction of each patch's rays that escaped: its cosine-weighted share of the sky,
+    # pooled over its cell of patches where it cast fewer than SKY_TEST_RAYS itself
+    # (clusters.pooled_fraction); NaN where its whole sheet cast fewer (too few to tell); None: unknown
     sky_fraction: np.ndarray | None = None
     links: csr_matrix | None = None
     push: csc_matrix | None = None
@@ -260,7 +261,7 @@ def gather_transport(
     rho /= np.maximum(np.bincount(pts.owner, weights=pts.weight, minlength=n), 1e-300)[:, None]
     cast = np.bincount(pts.owner, minlength=n) * rays_per_point
     escaped, cast = _sky_test(index, pts, escaped, cast, offset, seed)
-    fraction = np.where(cast >= SKY_TEST_RAYS, escaped / np.maximum(cast, 1), np.nan)
+    fraction = pooled_fraction(atlas, escaped, cast, SKY_TEST_RAYS)
     push = clusters.push if clusters is not None else None
     return Transport(G, rho, pts, m * rays_per_point, int(escaped.sum()), fraction, links, push)
 
@@ -286,7 +287,8 @@ def _sky_test(index, pts: ReceiverPoints, escaped: np.ndarray, cast: np.ndarray,
     the sky, and every bake point and near gather hit on them cast sky rays (most of the sky rays
     of the production room's bake under a grey world). Only when the test costs at most
     SKY_TEST_SHARE of the rays already cast: under a large atlas's ray budget every patch casts
-    a few, and testing them all would cost more than the transport (they keep the sky)."""
+    a few, and testing them all would cost more than the transport (their cells tell instead:
+    clusters.pooled_fraction)."""
     counts = np.bincount(pts.owner, minlength=len(cast))
     short = np.flatnonzero((cast < SKY_TEST_RAYS) & (counts > 0))
     want = SKY_TEST_RAYS - cast[short]
