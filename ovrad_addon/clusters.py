@@ -198,41 +198,41 @@ def _key(dims, sheets, ijk, bins, level: int) -> np.ndarray:
 
 def pooled_fraction(atlas, escaped: np.ndarray, cast: np.ndarray, want: int) -> np.ndarray:
     """(n,) each patch's escaped share of its rays, pooled over the cell of patches around it
-    where it cast fewer than `want` rays itself: the finest cell of its sheet's lookup grid,
-    coarsened by powers of two (and split by normal bin, as the clusters are), whose patches
-    cast at least `want` between them. NaN where even its whole sheet cast fewer.
+    where it cast fewer than `want` rays itself: the smallest cube of a grid over the scene
+    (side twice the smallest such patch's radius, doubled level by level) that holds its centre
+    and, among patches facing its way (normal_bin), cast at least `want` rays between them. NaN
+    where even the whole scene's patches facing its way cast fewer.
 
     At 100 000 patches each casts some 70 transport rays: too few to tell whether it sees the
     sky, and a test of SKY_TEST_RAYS rays from each would cost more than the transport
-    (transport._sky_test). Its cell's neighbours, facing the same way, share most of its view;
-    a patch none of whose cell's `want` rays escaped sees, on the cell's average, under about
-    1 / want of sky. A patch whose own rays escaped is in a cell whose did: it keeps the sky."""
+    (transport._sky_test). Its neighbours facing the same way share most of its view; a patch
+    none of whose cell's `want` rays escaped sees, on the cell's average, under about 1 / want of
+    sky. A patch whose own rays escaped is in a cell whose did: it keeps the sky. The grid is the
+    scene's, not each sheet's: clutter of many small pieces (a sheet each) casts too few rays per
+    sheet to tell."""
     n = len(escaped)
     cast = np.asarray(cast, np.float64)
     escaped = np.asarray(escaped, np.float64)
     fraction = np.where(cast >= want, escaped / np.maximum(cast, 1.0), np.nan)
-    todo = np.flatnonzero(np.isnan(fraction) & (cast > 0))
-    if n == 0 or len(todo) == 0:
+    use = np.flatnonzero(cast > 0)
+    if n == 0 or not np.isnan(fraction[use]).any():
         return fraction
-    grid = atlas.grid
-    sheets = np.asarray(atlas.sheet, np.int64)
-    ijk, ok = grid.cells(atlas.centers, sheets)
-    top = np.maximum(np.ceil(np.log2(np.max(grid.dims - 1, axis=1) + 1.0)).astype(np.int64), FIRST_LEVEL)
-    bins = 2 * normal_bin(atlas.normals)
-    use = np.flatnonzero(ok & (cast > 0))
-    for level in range(FIRST_LEVEL, int(top.max(initial=FIRST_LEVEL)) + 1):
-        lv = np.minimum(level, top[sheets[use]])  # a sheet past its top stays one cell
-        key = np.zeros(len(use), np.int64)
-        for v in np.unique(lv):
-            at = lv == v
-            key[at] = _key(grid.dims, sheets[use[at]], ijk[use[at]], bins[use[at]], int(v))
-        # keys of different levels can collide: tell them apart by the level
-        uniq, col = np.unique(np.stack([lv, key], 1), axis=0, return_inverse=True)
+    centers = np.asarray(atlas.centers, np.float64)[use]
+    lo = centers.min(axis=0)
+    extent = float(np.max(centers.max(axis=0) - lo))
+    radii = np.asarray(atlas.radii, np.float64)[use]
+    short = np.isnan(fraction[use])
+    h = max(2.0 * float(radii[short].min()), extent * 2.0**-20, 1e-12)
+    bins = normal_bin(np.asarray(atlas.normals, np.float64)[use])
+    while True:
+        ijk = np.floor((centers - lo) / h).astype(np.int64)
+        uniq, col = np.unique(np.column_stack([ijk, bins]), axis=0, return_inverse=True)
         col = col.ravel()
         rays = np.bincount(col, weights=cast[use], minlength=len(uniq))
         out = np.bincount(col, weights=escaped[use], minlength=len(uniq))
-        fill = np.isnan(fraction[use]) & (rays[col] >= want)
+        fill = short & (rays[col] >= want)
         fraction[use[fill]] = out[col[fill]] / rays[col[fill]]
-        if not np.isnan(fraction[use]).any():
-            break
-    return fraction
+        short &= ~fill
+        if not short.any() or not ijk.any():  # one cell holds them all
+            return fraction
+        h *= 2.0
