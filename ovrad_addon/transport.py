@@ -66,7 +66,8 @@ class Transport:
     escaped: int = -1  # -1: not counted
     # (n,) the fraction of each patch's rays that escaped: its cosine-weighted share of the sky,
     # pooled over its cell of patches where it cast fewer than SKY_TEST_RAYS itself
-    # (clusters.pooled_fraction); NaN where its whole sheet cast fewer (too few to tell); None: unknown
+    # (clusters.pooled_fraction); NaN where all patches facing its way cast fewer (too few to
+    # tell); None: unknown
     sky_fraction: np.ndarray | None = None
     links: csr_matrix | None = None
     push: csc_matrix | None = None
