@@ -47,9 +47,9 @@ def _gauss(n_sub: int) -> tuple[np.ndarray, np.ndarray]:
 def polar_rule(
     atlas, ids: np.ndarray, nb: np.ndarray, q: int, planar: np.ndarray, rings: int, rays=None, cuts=None
 ):
-    """Polar rule on each patch: (owner, x, y, w, cand, ray, rho) flat, in the patch's plane
-    coordinates, ray the rule ray each point lies on and rho its distance from the centre;
-    rays (k, 4q) bool: those rule rays only; cuts (k, 4q, E): more distances to split them at.
+    """Polar rule on each patch: (owner, x, y, w, cand, ray) flat, in the patch's plane
+    coordinates, ray the rule ray each point lies on; rays (k, 4q) bool: those rule rays only;
+    cuts (k, 4q, E): more distances to split them at.
 
     Along each of 4q rays from the centre, the radius is split at every crossing of a
     neighbour's rim (nb (k, M) neighbour indices, -1 padding; used on planar sheets, where
@@ -82,7 +82,7 @@ def polar_rule(
     th = np.repeat(theta[kk, tt], per_piece)
     cand = np.repeat(_piece_candidates(spans, lo, hi, r, kk, tt, planar, nb), per_piece, axis=0)
     rho = rho.ravel()
-    return owner, rho * np.cos(th), rho * np.sin(th), w.ravel(), cand, np.repeat(tt, per_piece), rho
+    return owner, rho * np.cos(th), rho * np.sin(th), w.ravel(), cand, np.repeat(tt, per_piece)
 
 
 def _rule_rays(atlas, ids: np.ndarray, q: int) -> tuple[np.ndarray, ...]:
@@ -227,18 +227,18 @@ def patch_quadrature(
         # as a whole. Splitting the cut rays into 2q rings instead took 2 300 rule points per
         # patch on the production room's small pieces at 100 k patches (most of its Generate:
         # each point is cast onto the surface and paired with every neighbour)
-        coarse, ray, rho, flat = _surface_rule(atlas, index, ids, q, nb, max(q // 4, 1), visibility)
+        coarse, ray, flat = _surface_rule(atlas, index, ids, q, nb, max(q // 4, 1), visibility)
         off = coarse.triangle < 0
         if not off.any():
             return coarse
         cut_rays = np.zeros((len(ids), 4 * q), bool)
         cut_rays[coarse.owner[off], ray[off]] = True
+        # rays with a point on the sheet but off the support: a contact or a closed object hides it
+        hidden = np.zeros_like(cut_rays)
+        hidden[coarse.owner[off & flat], ray[off & flat]] = True
         where = np.flatnonzero(cut_rays.any(axis=1))
         on = cut_rays[coarse.owner, ray]
-        sub = np.full(len(ids), -1)
-        sub[where] = np.arange(len(where))
-        points = (sub[coarse.owner[on]], ray[on], rho[on], ~off[on], flat[on])
-        cuts = support_cuts(atlas, index, ids[where], q, cut_rays[where], *points, visibility)
+        cuts = support_cuts(atlas, index, ids[where], q, cut_rays[where], hidden[where], visibility)
         fine = _surface_rule(
             atlas, index, ids[where], q, nb[where], max(q // 4, 1), visibility, cut_rays[where], cuts
         )[0]
@@ -258,7 +258,7 @@ BISECTION_STEPS = 4  # a cut along a rule ray found to 1/16 of the distance betw
 GRADED = 4  # breaks toward a cut on a curved sheet: at 1, 1/2, 1/4, 1/8 of rmax / 2q from it
 
 
-def support_cuts(atlas, index, ids, q: int, rays, owner, ray, rho, inside, flat, visibility) -> np.ndarray:
+def support_cuts(atlas, index, ids, q: int, rays, hidden, visibility) -> np.ndarray:
     """(k, 4q, E) the distances from the centre at which the rule rays `rays` (k, 4q) bool of
     patches ids (k,) cross their support's edge (padded with inf; on curved sheets with GRADED
     breaks beside each), by bisection between two points along a ray, one on and one off, to
@@ -267,16 +267,23 @@ def support_cuts(atlas, index, ids, q: int, rays, owner, ray, rho, inside, flat,
     The points: 2q along the ray (equal-area spacing) and its centre and rim, so a strip or a
     gap wider than their spacing is found. Where the sheet ends (its border, a crease, a face
     turned away) the sheet alone tells (one short ray each: _on_surface without the buried and
-    visibility tests); on rays where one of the coarse rule's points is on the sheet but off the
-    support (buried, hidden), every test does. The coarse rule's points on those rays: owner
-    (m,) in ids, ray (m,), rho (m,), inside (m,) bool (on the support) and flat (m,) bool (on
-    the sheet)."""
+    visibility tests); on the rays `hidden` (k, 4q) bool, where a point of the coarse rule is on
+    the sheet but off the support (buried, hidden by a contact), every test does."""
     theta, _, _, _, rmax = _rule_rays(atlas, ids, q)
     planar = index.planar[index.sheet_chart[atlas.sheet[ids]]]
 
-    def status(k, t, r, tests=True):
+    def status(k, t, r) -> np.ndarray:
+        """(m,) bool: the points at r along rays t of patches k are on the support (every test
+        on the hidden rays, the sheet alone elsewhere)."""
         x, y = r * np.cos(theta[k, t]), r * np.sin(theta[k, t])
-        return _on_surface(atlas, index, ids[k], x, y, planar[k], visibility and tests, tests)[4]
+        full = hidden[k, t]
+        out = np.empty(len(r), bool)
+        for tests in (False, True):
+            a = np.flatnonzero(full == tests)
+            out[a] = _on_surface(
+                atlas, index, ids[k[a]], x[a], y[a], planar[k[a]], visibility and tests, tests
+            )[4]
+        return out
 
     def changes(k, t, r, s):
         """Consecutive points along a ray, one on and one off: (patch, ray, lo, hi, status at lo)."""
@@ -286,28 +293,14 @@ def support_cuts(atlas, index, ids, q: int, rays, owner, ray, rho, inside, flat,
         return k[at], t[at], r[at], r[at + 1], s[at]
 
     kk, tt = np.nonzero(rays)
-    # rays where a rule point on the sheet is off the support (buried, hidden) ask every test
-    on_ray = owner * rays.shape[1] + ray
-    hidden = np.zeros(rays.shape, bool)
-    hidden.flat[on_ray[flat & ~inside]] = True
     dense = 2 * q
     frac = np.concatenate([[0.0], np.sqrt((np.arange(dense) + 0.5) / dense), [1.0 - 1e-6]])
     dk, dt = np.repeat(kk, len(frac)), np.repeat(tt, len(frac))
     dr = (rmax[kk, tt][:, None] * frac[None, :]).ravel()
-    tests = hidden[dk, dt]
-    now = np.empty(len(dr), bool)
-    for full in (False, True):
-        at = np.flatnonzero(tests == full)
-        now[at] = status(dk[at], dt[at], dr[at], tests=full)
-    ck, ct, lo, hi, s_lo = changes(dk, dt, dr, now)
-    tests = hidden[ck, ct]
+    ck, ct, lo, hi, s_lo = changes(dk, dt, dr, status(dk, dt, dr))
     for _ in range(BISECTION_STEPS):
         mid = 0.5 * (lo + hi)
-        now = np.empty(len(mid), bool)
-        for full in (False, True):
-            at = np.flatnonzero(tests == full)
-            now[at] = status(ck[at], ct[at], mid[at], tests=full)
-        same = now == s_lo
+        same = status(ck, ct, mid) == s_lo
         lo, hi = np.where(same, mid, lo), np.where(same, hi, mid)
     cut = 0.5 * (lo + hi)
     # On a curved sheet the area element 1 / cos grows steeply toward a cut where the surface
@@ -333,13 +326,13 @@ def support_cuts(atlas, index, ids, q: int, rays, owner, ray, rho, inside, flat,
 
 def _surface_rule(
     atlas, index, ids: np.ndarray, q: int, nb: np.ndarray, rings: int, visibility: bool, rays=None, cuts=None
-) -> tuple[Quadrature, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[Quadrature, np.ndarray, np.ndarray]:
     """patch_quadrature of plain patches with `rings` rings (on the rule rays `rays` (k, 4q) bool
-    only, None: all; split at `cuts` too, polar_rule), the rule ray (m,) each point lies on, its
-    distance from the centre (m,), and whether it is on the sheet facing its way (m,) (_on_surface)."""
+    only, None: all; split at `cuts` too, polar_rule), the rule ray (m,) each point lies on and
+    whether it is on the sheet facing its way (m,) (_on_surface)."""
     chart = index.sheet_chart[atlas.sheet[ids]]
     planar = index.planar[chart]
-    owner, x, y, w, cand, ray, rho = polar_rule(atlas, ids, nb, q, index.flat[chart], rings, rays, cuts)
+    owner, x, y, w, cand, ray = polar_rule(atlas, ids, nb, q, index.flat[chart], rings, rays, cuts)
     pts, tri_n, tri, jac, ok, flat = _on_surface(atlas, index, ids[owner], x, y, planar[owner], visibility)
     quad = Quadrature(
         owner=owner,
@@ -349,7 +342,7 @@ def _surface_rule(
         triangle=np.where(ok, tri, -1),
         cand=cand,
     )
-    return quad, ray, rho, flat
+    return quad, ray, flat
 
 
 def _on_surface(
