@@ -229,28 +229,32 @@ class HitValues:
     sky: np.ndarray | None
 
 
+MAX_DIVISIONS = 256  # a triangle side needing a finer lattice (over 33 k nodes) reads alpha at its hits
+
+
 class CornerCache:
-    """The gather's hits on small triangles, read from values kept at the triangles' corners.
+    """The gather's hits read from values kept at the nodes of a lattice over their triangle.
 
-    A production mesh sends most gather rays to small triangles (a leaf next to a leaf, the clutter
-    on a shelf): a room of 100 k triangles at its default 2 000 patches has 38 M near hits in its
-    vertex bake. Two things are computed once per triangle and side, at its corners (stepped a hair
-    inside, as bake points are), and interpolated linearly across it:
-    - alpha-weighted patch values (HitValues), on triangles whose longest edge is at most
-      corner_alpha x the smallest patch radius on their side: alpha varies on the patches' scale,
-      and a quarter of the smallest radius is finer than any patch resolves;
-    - the near field's direct light, for hits whose triangle is at most NearField.corner_size
-      (0.25) x their distance at 256 rays (x sqrt(256 / rays) at other counts): smaller than the
-      spacing of the gather's rays where they land (256 rays: about 0.16 rad apart), so the gather
-      does not resolve light inside it. (test_gather.py: on a floor in 4.4 cm triangles beside a
-      4 cm shadow band, 0.25 x the distance moved the light gathered by 4 096 rays by under 0.2 %;
-      0.5 x smeared the band, up to 2.7 %.)
-    Other hits (a large triangle seen close: the floor at an object's foot) take alpha and shadow
-    rays where they land. Values depend only on the triangle and side, never on which thread or bake
-    point asked first: no noise, the same result on any number of threads.
+    Two things are computed once per lattice node (stepped a hair inside the triangle, as bake
+    points are) and interpolated linearly across the lattice's cells:
+    - alpha-weighted patch values (HitValues), on a lattice over each triangle side whose spacing is
+      at most corner_alpha x the smallest patch radius of the side's sheet: alpha varies on the
+      patches' scale, and a quarter of the smallest radius is finer than any patch resolves. A
+      triangle at most that size is its own cell (its corners); a wall's large triangle at 100 k
+      patches is cut in up to a few hundred rows of cells. The production room's vertex bake at
+      100 k patches sends 52 M gather rays to 10.5 M nodes, of which about 3 M are ever asked
+      (alpha at every hit was 40 % of that bake, py-spy);
+    - the near field's direct light at the triangle's corners, for hits whose triangle is at most
+      NearField.corner_size (0.25) x their distance at 256 rays (x sqrt(256 / rays) at other
+      counts): smaller than the spacing of the gather's rays where they land (256 rays: about 0.16
+      rad apart), so the gather does not resolve light inside it. (test_gather.py: on a floor in
+      4.4 cm triangles beside a 4 cm shadow band, 0.25 x the distance moved the light gathered by
+      4 096 rays by under 0.2 %; 0.5 x smeared the band, up to 2.7 %.)
+    Other near hits (a large triangle seen close: the floor at an object's foot) cast shadow rays
+    where they land; a side whose lattice would be finer than MAX_DIVISIONS takes alpha at each hit.
+    Values depend only on the node, never on which thread or bake point asked first: no noise, the
+    same result on any number of threads.
     """
-
-    LIGHT, VALUES = 0, 1
 
     def __init__(
         self,
@@ -263,77 +267,59 @@ class CornerCache:
         self.problem, self.values, self.near = problem, values, near
         index, atlas = problem.index, problem.atlas
         c = index.surfaces.corners
+        T = len(c)
         edges = np.stack([c[:, 1] - c[:, 0], c[:, 2] - c[:, 1], c[:, 0] - c[:, 2]], axis=1)
         self.size = np.sqrt(np.einsum("tej,tej->te", edges, edges).max(axis=1))
         smallest = np.full(len(index.sheet_chart) + 1, np.inf)  # last: no sheet (-1)
         np.minimum.at(smallest, atlas.sheet, atlas.radii)
         self.alpha_size = corner_alpha * smallest if corner_alpha > 0 else np.full_like(smallest, -1.0)
+        tri = np.arange(T)
+        divisions = np.zeros((2, T), np.int64)  # (back, triangle); 0: alpha at each hit
+        if corner_alpha > 0:
+            for back in (0, 1):
+                h = self.alpha_size[index.sheet_of(tri, np.full(T, 1 - 2 * back))]
+                n = np.ceil(self.size / h)  # a side without patches (h = inf): one cell
+                divisions[back] = np.where(n <= MAX_DIVISIONS, np.maximum(n, 1), 0)
+        self.patch_nodes = LatticeValues(divisions, 8, np.float32, self._values)
         # the spacing of the gather's rays where they land goes as 1 / sqrt(rays)
         self.light_size = 0.0 if near is None else near.corner_size * np.sqrt(256.0 / max(rays, 1))
-        self.slot = np.full((2, len(c), 2), -1, np.int64)  # (kind, triangle, back) -> row
-        self.rows = [np.zeros((64, 3, 3)), np.zeros((64, 3, 8))]  # grown by doubling
-        self.count = [0, 0]
-        self.lock = threading.Lock()
+        self.light_nodes = None
+        if near is not None:
+            self.light_nodes = LatticeValues(np.ones((2, T), np.int64), 3, np.float64, self._light)
 
-    def _corners(self, tri, side):
-        index = self.problem.index
-        tri3, side3 = np.repeat(tri, 3), np.repeat(side, 3)
-        pts = inside(index.surfaces, index.surfaces.corners[tri].reshape(-1, 3), tri3)
-        return pts, tri3, side3
+    def _at(self, tri, side, pts):
+        return inside(self.problem.index.surfaces, pts, tri)
 
-    def _values(self, tri, side) -> np.ndarray:
-        pts, tri3, side3 = self._corners(tri, side)
-        a = alpha_at(self.problem.atlas, self.problem.index, pts, tri3, side3)
+    def _values(self, tri, side, pts) -> np.ndarray:
+        pts = self._at(tri, side, pts)
+        a = alpha_at(self.problem.atlas, self.problem.index, pts, tri, side)
         return _patch_values(self.problem, a, self.values, self.near)
 
-    def _light(self, tri, side) -> np.ndarray:
+    def _light(self, tri, side, pts) -> np.ndarray:
         problem, near = self.problem, self.near
         index = problem.index
-        pts, tri3, side3 = self._corners(tri, side)
-        normals = index.charts.normals[tri3] * side3[:, None]
+        pts = self._at(tri, side, pts)
+        normals = index.charts.normals[tri] * side[:, None]
         sky_at = None
         if near.light.sky is not None and near.sky_seen is not None:
-            sky_at = may_see_sky(alpha_at(problem.atlas, index, pts, tri3, side3), near.sky_seen)
+            sky_at = may_see_sky(alpha_at(problem.atlas, index, pts, tri, side), near.sky_seen)
         return direct_irradiance(index.surfaces, index.rays, near.light, pts, normals, sky_at)[0]
-
-    def _rows(self, kind: int, tri, side) -> np.ndarray:
-        """(k, 3 corners, width) kept values of one kind on triangles (k,) seen from sides (k,)."""
-        back = (np.asarray(side) < 0).astype(np.int64)
-        slot = self.slot[kind, tri, back]
-        if np.any(slot < 0):
-            with self.lock:  # fills are few (one per triangle and side) and run one at a time
-                need = self.slot[kind, tri, back] < 0
-                if np.any(need):
-                    key = np.unique(tri[need] * 2 + back[need])
-                    t_new, b_new = key // 2, key % 2
-                    fill = self._light if kind == self.LIGHT else self._values
-                    vals = fill(t_new, np.where(b_new == 1, -1, 1)).reshape(len(key), 3, -1)
-                    rows, count = self.rows[kind], self.count[kind]
-                    if count + len(key) > len(rows):  # readers keep the old array; its rows stay valid
-                        grown = np.empty((max(2 * len(rows), count + len(key)), *rows.shape[1:]))
-                        grown[:count] = rows[:count]
-                        self.rows[kind] = rows = grown
-                    rows[count : count + len(key)] = vals
-                    self.count[kind] = count + len(key)
-                    self.slot[kind, t_new, b_new] = count + np.arange(len(key))  # after the rows
-            slot = self.slot[kind, tri, back]
-        return self.rows[kind][slot]
 
     def light_at(self, points, triangles, sides) -> np.ndarray:
         """Near-field direct irradiance (k, 3) at points on triangles (k,), seen from sides (k,)."""
-        w = barycentric(self.problem.index.surfaces.corners[triangles], points)
-        return np.einsum("kc,kcj->kj", w, self._rows(self.LIGHT, triangles, sides))
+        corners = self.problem.index.surfaces.corners[triangles]
+        return self.light_nodes.at(corners, points, triangles, sides)
 
     def values_at(self, points, triangles, sides) -> HitValues:
-        """HitValues at hits: from the corners on small triangles, from alpha at the others."""
+        """HitValues at hits: from the lattice where their side has one, from alpha at the others."""
         problem = self.problem
-        small = self.size[triangles] <= self.alpha_size[problem.index.sheet_of(triangles, sides)]
+        kept = self.patch_nodes.divisions[(np.asarray(sides) < 0).astype(np.int64), triangles] > 0
         out = np.empty((len(points), 8))
-        s = np.flatnonzero(small)
+        s = np.flatnonzero(kept)
         if len(s):
-            w = barycentric(problem.index.surfaces.corners[triangles[s]], points[s])
-            out[s] = np.einsum("kc,kcj->kj", w, self._rows(self.VALUES, triangles[s], sides[s]))
-        e = np.flatnonzero(~small)
+            corners = problem.index.surfaces.corners[triangles[s]]
+            out[s] = self.patch_nodes.at(corners, points[s], triangles[s], sides[s])
+        e = np.flatnonzero(~kept)
         if len(e):
             a = alpha_at(problem.atlas, problem.index, points[e], triangles[e], sides[e])
             out[e] = _patch_values(problem, a, self.values, self.near)
@@ -341,6 +327,83 @@ class CornerCache:
         if self.near is not None and self.near.light.sky is not None and self.near.sky_seen is not None:
             sky = out[:, 7] > 0
         return HitValues(out[:, :3], out[:, 3:6], out[:, 6], sky)
+
+
+class LatticeValues:
+    """Values kept at the nodes of a regular lattice over each triangle side, filled when first
+    asked and read by linear interpolation in the lattice cell a point falls in.
+
+    divisions (2, T): the lattice of (front, back) side of triangle t cuts each edge in n pieces
+    ((n + 1)(n + 2) / 2 nodes: i, j >= 0, i + j <= n at corner weights (n - i - j, i, j) / n);
+    n = 1 is the triangle's corners; 0: none (at() must not be asked there). fill(tri, side, points)
+    -> (k, width) computes values at nodes. Threads may fill the same node at once: both compute
+    it, the first stored stays, and since a node's value depends on the node only, they agree.
+    """
+
+    def __init__(self, divisions: np.ndarray, width: int, dtype, fill):
+        self.divisions = np.asarray(divisions, np.int64)
+        n = self.divisions
+        count = np.where(n > 0, (n + 1) * (n + 2) // 2, 0).ravel()
+        self.base = (np.cumsum(count) - count).reshape(n.shape)
+        self.slot = np.full(int(count.sum()), -1, np.int32 if count.sum() < 2**31 else np.int64)
+        self.rows = np.zeros((64, width), dtype)  # grown by doubling
+        self.count = 0
+        self.fill = fill
+        self.lock = threading.Lock()
+
+    def at(self, corners, points, triangles, sides) -> np.ndarray:
+        """Interpolated values (k, width) at points (k, 3) on triangles (k,) (corners (k, 3, 3)),
+        seen from sides (k,) +-1."""
+        back = (np.asarray(sides) < 0).astype(np.int64)
+        n = self.divisions[back, triangles]
+        w = barycentric(corners, points)
+        u, v = w[:, 1] * n, w[:, 2] * n
+        i0 = np.clip(np.floor(u), 0, n - 1).astype(np.int64)
+        j0 = np.clip(np.floor(v), 0, n - 1 - i0).astype(np.int64)
+        fu, fv = u - i0, v - j0
+        upper = (fu + fv > 1.0) & (i0 + j0 <= n - 2)  # (the last row of cells has no upper one)
+        # nodes of the lower cell: (i0, j0), (i0 + 1, j0), (i0, j0 + 1);
+        # of the upper one: (i0 + 1, j0 + 1), (i0, j0 + 1), (i0 + 1, j0)
+        ni = i0[:, None] + np.where(upper[:, None], [1, 0, 1], [0, 1, 0])
+        nj = j0[:, None] + np.where(upper[:, None], [1, 1, 0], [0, 0, 1])
+        weight = np.where(
+            upper[:, None],
+            np.column_stack([fu + fv - 1.0, 1.0 - fu, 1.0 - fv]),
+            np.column_stack([1.0 - fu - fv, fu, fv]),
+        )
+        weight = np.clip(weight, 0.0, 1.0)
+        weight /= np.maximum(weight.sum(axis=1, keepdims=True), 1e-300)
+        # node (i, j) of a lattice of n: rows i' < i hold n + 1 - i' nodes each
+        node = self.base[back, triangles][:, None] + ni * (2 * n[:, None] + 3 - ni) // 2 + nj
+        rows = self._rows(node, triangles, sides, corners, ni, nj, n)
+        return np.einsum("kc,kcj->kj", weight, rows)
+
+    def _rows(self, node, triangles, sides, corners, ni, nj, n) -> np.ndarray:
+        slot = self.slot[node]
+        need = slot < 0
+        if np.any(need):
+            new, first = np.unique(node[need], return_index=True)
+            k, c = np.nonzero(need)
+            k, c = k[first], c[first]
+            nn = n[k].astype(np.float64)
+            a, b = ni[k, c] / nn, nj[k, c] / nn
+            w = np.column_stack([1.0 - a - b, a, b])
+            w[:, 0] = np.where(ni[k, c] + nj[k, c] == n[k], 0.0, w[:, 0])  # exact on the far edge
+            pts = np.einsum("kc,kcj->kj", w, corners[k])
+            vals = self.fill(triangles[k], np.where(np.asarray(sides)[k] < 0, -1, 1), pts)
+            with self.lock:
+                fresh = self.slot[new] < 0
+                new, vals = new[fresh], vals[fresh]
+                rows, count = self.rows, self.count
+                if count + len(new) > len(rows):  # readers keep the old array; its rows stay valid
+                    grown = np.empty((max(2 * len(rows), count + len(new)), rows.shape[1]), rows.dtype)
+                    grown[:count] = rows[:count]
+                    self.rows = rows = grown
+                rows[count : count + len(new)] = vals
+                self.count = count + len(new)
+                self.slot[new] = count + np.arange(len(new))  # after the rows
+            slot = self.slot[node]
+        return self.rows[slot].astype(np.float64)
 
 
 def _patch_values(problem, alpha, values, near: NearField | None) -> np.ndarray:

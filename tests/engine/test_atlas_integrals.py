@@ -7,7 +7,7 @@ import pytest
 
 import scenes
 from ovrad_addon.atlas import Atlas, build_atlas, index_surfaces
-from ovrad_addon.overlap import alpha_at, overlap_matrix, reconstruct
+from ovrad_addon.overlap import alpha_at, overlap_matrix, patch_average, reconstruct
 from ovrad_addon.settings import AtlasSettings
 from ovrad_addon.surfaces import Surfaces
 
@@ -221,3 +221,18 @@ def test_support_of_a_disk_on_a_strip_narrower_than_its_rule_matches_the_closed_
     found = [overlap_matrix(replace(atlas, random=np.array([t])), index, q)[1][0] for t in np.arange(10) / 10]
     np.testing.assert_allclose(found, exact, rtol=0.07)
     np.testing.assert_allclose(np.mean(found), exact, rtol=5e-3)
+
+
+def test_patch_average_of_a_field_on_a_few_sheets_skips_only_patches_it_cannot_reach():
+    """The Cornell box's emission is on its lamp only, so patch_average integrates the lamp's
+    sheets alone; shifted by 1 everywhere, every patch is integrated: the two must differ by
+    exactly 1 on every patch (a patch left out wrongly would read 0 against its mean - 1)."""
+    s = scenes.cornell()
+    atlas = build_atlas(s, AtlasSettings(patch_count=300))
+    index = index_surfaces(s, AtlasSettings(patch_count=300))
+    lamp = s.emission
+    assert 0 < np.count_nonzero(lamp.any(axis=1)) < len(lamp) // 10
+    few = patch_average(atlas, index, lamp)
+    every = patch_average(atlas, index, lamp + 1.0)
+    np.testing.assert_allclose(every - 1.0, few, atol=1e-12)
+    assert np.count_nonzero(few.any(axis=1)) > 0
