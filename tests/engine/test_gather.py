@@ -12,6 +12,7 @@ from ovrad_addon.direct import triangle_normals
 from ovrad_addon.errors import OvradError
 from ovrad_addon.gather import (
     CornerCache,
+    LatticeValues,
     NearField,
     barycentric,
     gather_indirect,
@@ -406,3 +407,30 @@ def test_near_field_does_not_depend_on_threads_or_chunks(block):
     )
     assert np.any(one > 0)
     np.testing.assert_array_equal(one, many)
+
+
+def test_lattice_reproduces_linear_values_and_fills_each_node_once():
+    """Values linear in position are reproduced exactly anywhere on a triangle (each lattice cell
+    interpolates linearly between its nodes); each node is computed once, whatever the order asked;
+    the two sides are kept apart; a lattice of n cuts holds (n + 1)(n + 2) / 2 nodes."""
+    corners = np.array([[[0.0, 0, 0], [3, 0, 0], [0.5, 2, 0]], [[0.0, 0, 1], [1, 0, 1], [0, 1, 1]]])
+    asked = []
+
+    def fill(tri, side, pts):
+        asked.append(len(tri))
+        return np.column_stack([pts @ [1.0, -2.0, 0.5] + 3 * tri + side, np.ones(len(tri))])
+
+    lattice = LatticeValues(np.array([[7, 1], [5, 0]]), 2, np.float64, fill)
+    assert len(lattice.slot) == 36 + 3 + 21
+    rng = np.random.default_rng(3)
+    w = rng.dirichlet([1, 1, 1], 500)
+    w[:6] = [[1, 0, 0], [0, 1, 0], [0, 0, 1], [0.5, 0.5, 0], [0, 0.5, 0.5], [1 / 3, 1 / 3, 1 / 3]]
+    for tri, side in ((0, 1), (1, 1), (0, -1), (0, 1)):
+        pts = np.einsum("kc,cj->kj", w, corners[tri])
+        k = len(pts)
+        got = lattice.at(np.repeat(corners[tri : tri + 1], k, 0), pts, np.full(k, tri), np.full(k, side))
+        want = pts @ [1.0, -2.0, 0.5] + 3 * tri + side
+        np.testing.assert_allclose(got[:, 0], want, atol=1e-12)
+        np.testing.assert_allclose(got[:, 1], 1.0, atol=1e-12)
+    assert sum(asked) == lattice.count <= 36 + 3 + 21  # the repeated side asked nothing new
+    assert len(asked) == 3
