@@ -189,13 +189,18 @@ def main(argv: list[str]) -> int:
     p.add_argument("--name", default="scale", help="results file name without .csv")
     p.add_argument("--batch-args", default="", help="extra batch options, one string")
     p.add_argument("--one", nargs=2, help=argparse.SUPPRESS)
-    p.add_argument("--production-blend", default="", help=argparse.SUPPRESS)
+    p.add_argument(
+        "--production-blend",
+        default="",
+        help="bake this production room .blend (make_production_scene.py) instead of building one: "
+        "runs from one file are comparable to the last digit",
+    )
     a = p.parse_args(argv)
     if a.one:
         one(a.one[0], int(a.one[1]), a.batch_args, a.production_blend)
         return 0
-    blend = None
-    if "production" in a.scene:
+    blend = Path(a.production_blend) if a.production_blend else None
+    if "production" in a.scene and blend is None:
         blend = build_production(Path(tempfile.mkdtemp(prefix="ovrad-scale-")))
     RESULTS.mkdir(exist_ok=True)
     out = RESULTS / f"{a.name}.csv"
