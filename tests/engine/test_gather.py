@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import scenes
+from ovrad_addon import gather
 from ovrad_addon.atlas import build_atlas
 from ovrad_addon.direct import triangle_normals
 from ovrad_addon.errors import OvradError
@@ -434,3 +435,27 @@ def test_lattice_reproduces_linear_values_and_fills_each_node_once():
     assert lattice.used == 36 + 3 + 21  # slots for the three sides asked, none for the fourth
     assert sum(asked) == lattice.count <= lattice.used  # the repeated side asked nothing new
     assert len(asked) == 3
+
+
+def test_lattice_near_a_contact_matches_alpha_at_every_hit(block, monkeypatch):
+    """Points on a block's face 0.5-8 cm above the floor it rests on, the lamp on the block's other
+    side: their rays meet the floor at the block's foot, where the floor's patches step (hidden
+    under the block, in its shadow, lit further out). Read from the lattice there, that step is
+    smeared over cells seen under a large angle: 5.1 % of the points' mean light off (measured).
+    Hits within LATTICE_REACH radii read alpha where they land, and the gather agrees with alpha at
+    every hit (corner_alpha=0) within 0.2 % of the mean (measured)."""
+    s, problem = block
+    lamp = Lamp(kind="POINT", position=(2.0, 0.5, 2.5), power=300.0)
+    state = solve(problem, (lamp,), SolveSettings())
+    P = np.array([[x, 0.0, z] for x in (0.2, 0.5, 0.8) for z in (0.005, 0.01, 0.02, 0.04, 0.08)])
+    N = np.tile([0.0, -1.0, 0.0], (len(P), 1))  # the block's -y face, facing out
+    zero = np.zeros_like(state.radiosity)
+    exact = gather_indirect(problem, state.radiosity, zero, P, N, 256, corner_alpha=0)[:, 0]
+    scale = np.abs(exact).mean()
+    assert exact.max() > 0.1
+    assert CornerCache(problem, state.radiosity, None).patch_nodes.divisions.max() > 1  # a lattice
+    got = gather_indirect(problem, state.radiosity, zero, P, N, 256)[:, 0]
+    assert np.abs(got - exact).max() < 0.01 * scale
+    monkeypatch.setattr(gather, "LATTICE_REACH", 0.0)
+    smeared = gather_indirect(problem, state.radiosity, zero, P, N, 256)[:, 0]
+    assert np.abs(smeared - exact).max() > 0.03 * scale
