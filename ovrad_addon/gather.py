@@ -249,7 +249,8 @@ class CornerCache:
       triangle at most that size is its own cell (its corners); a wall's large triangle at 100 k
       patches is cut in up to a few hundred rows of cells. The production room's vertex bake at
       100 k patches sends 52 M gather rays to 10.5 M nodes, of which about 3 M are ever asked
-      (alpha at every hit was 40 % of that bake, py-spy);
+      (alpha at every hit was 40 % of that bake, py-spy). Hits closer than LATTICE_REACH patch
+      radii on a side cut in several cells take alpha where they land;
     - the near field's direct light at the triangle's corners, for hits whose triangle is at most
       NearField.corner_size (0.25) x their distance at 256 rays (x sqrt(256 / rays) at other
       counts): smaller than the spacing of the gather's rays where they land (256 rays: about 0.16
@@ -293,18 +294,15 @@ class CornerCache:
         if near is not None:
             self.light_nodes = LatticeValues(np.ones((2, T), np.int64), 3, np.float64, self._light)
 
-    def _at(self, tri, side, pts):
-        return inside(self.problem.index.surfaces, pts, tri)
-
     def _values(self, tri, side, pts) -> np.ndarray:
-        pts = self._at(tri, side, pts)
+        pts = inside(self.problem.index.surfaces, pts, tri)
         a = alpha_at(self.problem.atlas, self.problem.index, pts, tri, side)
         return _patch_values(self.problem, a, self.values, self.near)
 
     def _light(self, tri, side, pts) -> np.ndarray:
         problem, near = self.problem, self.near
         index = problem.index
-        pts = self._at(tri, side, pts)
+        pts = inside(index.surfaces, pts, tri)
         normals = index.charts.normals[tri] * side[:, None]
         sky_at = None
         if near.light.sky is not None and near.sky_seen is not None:
