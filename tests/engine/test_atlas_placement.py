@@ -152,3 +152,33 @@ def test_unusable_input_gives_a_clear_error(make, message):
 def test_too_many_patches_is_refused_before_building_them():
     with pytest.raises(OvradError, match="patches, more than the limit of 200,000"):
         build_atlas(scenes.cube(), AtlasSettings(patch_size=1e-4))
+
+
+def test_a_curved_piece_smaller_than_a_patch_gets_one(monkeypatch):
+    """A bent piece under ONE_PATCH_AREA of a patch's disk spans several placement voxels, each of
+    which gave it a nearly coincident patch (C's block nearly singular); it now gets one patch whose
+    disk reaches all of it. A piece twice the disk's area still gets several."""
+    from ovrad_addon import placement
+    from ovrad_addon.surfaces import triangle_geometry
+
+    spacing, overlap = 0.06, 1.3
+    disk = np.pi * (overlap * spacing / np.sqrt(2.0)) ** 2
+
+    def piece(size):
+        v, t = scenes.bent_leaf(np.random.default_rng(2), size, 0.5, 6)
+        c = v[t]
+        n = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
+        return c, n / np.linalg.norm(n, axis=1, keepdims=True)
+
+    small, n_small = piece(0.035)
+    assert triangle_geometry(small)[0].sum() < placement.ONE_PATCH_AREA * disk
+    one = placement.place_curved(small, n_small, spacing, overlap, 1.0, seed=1)
+    assert len(one.radii) == 1
+    pts = small.reshape(-1, 3)
+    assert np.all(np.linalg.norm(pts - one.centers[0], axis=1) <= one.radii[0] * 1.0001 + 1e-9)
+    monkeypatch.setattr(placement, "ONE_PATCH_AREA", 0.0)
+    assert len(placement.place_curved(small, n_small, spacing, overlap, 1.0, seed=1).radii) > 1
+    monkeypatch.undo()
+    large, n_large = piece(0.1)
+    assert triangle_geometry(large)[0].sum() > 2 * disk
+    assert len(placement.place_curved(large, n_large, spacing, overlap, 1.0, seed=1).radii) > 2
