@@ -434,7 +434,7 @@ class LatticeValues:
                 self.count = count + len(new)
                 self.slot[new] = count + np.arange(len(new))  # after the rows
             slot = self.slot[node]
-        return self.rows[slot].astype(np.float64)
+        return self.rows[slot].astype(np.float64, copy=False)  # (fancy indexing already copied)
 
 
 def _patch_values(problem, alpha, values, near: NearField | None) -> np.ndarray:
