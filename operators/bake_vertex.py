@@ -18,6 +18,7 @@ from bpy.props import EnumProperty, StringProperty
 
 from ..ovrad_addon.contact import split_corners
 from ..ovrad_addon.errors import OvradError
+from ..ovrad_addon.gather import shared_normals
 from ..ovrad_addon.pipeline import bake_normals, bake_sides, irradiance_at, radiance_at, without_area
 from . import attributes, mesh_reader, solve
 from .solution import load_solution
@@ -65,8 +66,10 @@ class ReceiverBake:
         self.n_vertices, self.n_loops = counts[0], counts[2]
         self.no_area = np.zeros(n_triangles, bool)  # triangles without area (set by reconstruct)
 
-    def reconstruct(self, solution, quantity: str) -> np.ndarray:
-        """(T, 3, 3) value at each triangle corner, negative ringing clamped to 0."""
+    def reconstruct(self, solution, quantity: str, share: bool = False) -> np.ndarray:
+        """(T, 3, 3) value at each triangle corner, negative ringing clamped to 0. share: the
+        corners of a vertex whose faces turn little share one gather (gather.shared_normals; for
+        the POINT domain, which averages them)."""
         problem = solution.problem
         self.no_area = without_area(problem, self.triangles)
         sides = np.repeat(bake_sides(problem, self.triangles), 3)
@@ -87,10 +90,19 @@ class ReceiverBake:
         normals = bake_normals(problem, tris, sides)
         split = split_corners(problem.index, self.tri_verts.ravel(), at, pts, normals)
         at = np.where(split[:, None], pts, at)
+        # A vertex's corners on one side (not split, with area) may share one gather for their faces'
+        # normals, weighted as domain_values weighs them (gather.shared_normals), chunk by chunk: the
+        # normals of every shared gather are held for the chunk's corners only.
+        group = None
+        if share:
+            sliver = np.repeat(self.no_area, 3)
+            group = np.where(split | sliver, -1, self.tri_verts.ravel() * 2 + (sides < 0))
+            angles = corner_angles(self.points).ravel()
         fn = irradiance_at if quantity == "IRRADIANCE" else radiance_at
         out = np.empty((len(pts), 3))
         for s in range(0, len(pts), CHUNK):
             k = order[s : s + CHUNK]
+            spread = None if group is None else shared_normals(group[k], normals[k], angles[k])
             out[k] = fn(
                 problem,
                 solution.radiosity,
@@ -100,6 +112,7 @@ class ReceiverBake:
                 solution.first_shot,
                 solution.light,
                 gather_points=at[k],
+                gather_normals=spread,
             )
         # Smooth beta rings slightly below 0 next to contact shadows; light is never negative.
         return np.maximum(out, 0.0).reshape(-1, 3, 3)
@@ -152,7 +165,7 @@ def bake_meshes(context, solution, name: str, domain: str, quantity: str) -> tup
             attributes.check_target(mesh, name)
             n_tri = int(np.sum(surfaces.object_index == i))
             bake = ReceiverBake(obj, depsgraph, solution.first_triangle[i], n_tri)
-            values = bake.domain_values(bake.reconstruct(solution, quantity), domain)
+            values = bake.domain_values(bake.reconstruct(solution, quantity, domain == "POINT"), domain)
         except OvradError as e:
             warnings.append(f"'{obj.name}' not baked: {e}")
             continue

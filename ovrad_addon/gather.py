@@ -128,6 +128,7 @@ def gather_indirect(
     workers: int = WORKERS,
     near: NearField | None = None,
     corner_alpha: float = CORNER_ALPHA,
+    spread: np.ndarray | None = None,
 ) -> np.ndarray:
     """Indirect irradiance (m, 3) in W/m^2 at points (m, 3) with unit normals (m, 3).
 
@@ -141,6 +142,11 @@ def gather_indirect(
     near: evaluate hits closer than a patch radius where they are (see NearField), else from the
     patches like the others. corner_alpha: hits read the patches' values from a lattice over their
     triangle at most this x the smallest patch radius fine (CornerCache; 0: alpha at every hit).
+    spread (m, k, 3): the weighted normals N_j each point gathers for (shared_normals; the normals
+    must be their gather_axis): a ray in direction d then counts sum_j max(0, N_j . d) / (n . d)
+    times what it brings, so the gather estimates the weighted mean of the irradiances about each
+    N_j; the light from below n's horizon but above an N_j's, which no ray samples, is taken as the
+    light of the rays under HORIZON (exact under an even sky and for light from above every horizon).
     """
     pts = np.asarray(points, np.float64).reshape(-1, 3)
     nrm = np.asarray(normals, np.float64).reshape(-1, 3)
@@ -151,6 +157,8 @@ def gather_indirect(
     if rays > MAX_RAYS:
         raise ValueError(f"at most {MAX_RAYS} gather rays per point, got {rays}")
     atlas, index = problem.atlas, problem.index
+    if spread is not None:
+        spread = np.asarray(spread, np.float64).reshape(m, np.shape(spread)[-2], 3)
     if triangles is not None:
         pts = inside(index.surfaces, pts, triangles)
     values = np.asarray(radiosity, np.float64) - np.asarray(emission, np.float64)
@@ -188,7 +196,24 @@ def gather_indirect(
                 there = _near_values(problem, near, cache, at[close], tri[close], side[close], t[close], sky)
                 there += v.near[close]
                 got[hit[close]] += w[close, None] * (there - got[hit[close]])
-        return sl, got.reshape(-1, rays, 3).mean(axis=1)
+        got = got.reshape(-1, rays, 3)
+        if spread is None or spread.shape[1] == 1:
+            return sl, got.mean(axis=1)
+        sp = spread[sl]
+        several = np.flatnonzero(np.any(sp[:, 1:] != 0.0, axis=(1, 2)))
+        if len(several) == 0:
+            return sl, got.mean(axis=1)
+        g = got[several]
+        # the light from between the axis's horizon and a normal's, which no ray samples: for a
+        # normal N_j at angle a_j from the axis it is (1 - cos a_j) / 2 of light arriving evenly from
+        # there, so sum_j |N_j| (1 - cos a_j) / 2 = (1 - |sum_j N_j|) / 2 of the light seen low
+        low = g[:, local[:, 2] < HORIZON, :].mean(axis=1)
+        missed = 0.5 * (1.0 - np.linalg.norm(sp[several].sum(axis=1), axis=1))
+        d = dirs.reshape(-1, rays, 3)[several]
+        cos = np.maximum(np.einsum("prj,pkj->prk", d, sp[several]), 0.0).sum(axis=2)
+        out = got.mean(axis=1)
+        out[several] = (g * (cos / local[None, :, 2])[..., None]).mean(axis=1) + missed[:, None] * low
+        return sl, out
 
     for sl, e in threaded(chunk, len(starts), workers):
         out[sl] = e
@@ -500,6 +525,70 @@ def unique_points(points, normals, tolerance: float) -> tuple[np.ndarray, np.nda
     return first, inverse.ravel()
 
 
+# Corners of one vertex whose face normals all lie within this angle of their mean share one
+# gather (shared_normals): a vertex of a flat-shaded curved mesh otherwise gathers once per face
+# around it.
+SHARE_ANGLE = np.radians(20.0)
+SHARE_MOST = 16  # distinct normals per shared gather at most (more: one gather per face)
+HORIZON = np.sin(np.radians(20.0))  # rays this low (cosine to the axis) tell the light seen low
+
+
+def shared_normals(
+    groups, normals, weights, max_angle: float = SHARE_ANGLE, most: int = SHARE_MOST
+) -> np.ndarray:
+    """(m, k, 3) the normals each of m points gathers for, scaled by their share (summing to 1):
+    its group's distinct unit normals weighted by `weights` where every one is within max_angle of
+    their mean and there are at most `most` of them, else its own normal alone (k = 1 when none
+    shares; zero rows pad).
+
+    groups (m,) int: points that may share (a vertex's corners on one side; -1: never); weights (m,)
+    >= 0 (a corner's angle). A gather for such a set casts about the set's mean and weights each ray
+    so that it estimates the weighted mean of the irradiances about each normal (gather_indirect):
+    at a vertex of a smooth mesh one gather stands for the faces around it; at a crease (a box's edge)
+    the normals are apart and each face keeps its own gather.
+    """
+    nrm = np.asarray(normals, np.float64).reshape(-1, 3)
+    m = len(nrm)
+    g = np.asarray(groups, np.int64)
+    w_all = np.asarray(weights, np.float64)
+    share = np.flatnonzero(g >= 0)
+    if len(share) == 0:
+        return nrm[:, None, :].copy()
+    # the distinct normals of each group (a quad's two triangles, a fan's repeats), weights summed
+    key = np.column_stack([g[share], np.round(nrm[share] * 1e9).astype(np.int64)])
+    _, first, u = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    u = u.ravel()
+    n_u = nrm[share[first]]
+    w_u = np.bincount(u, weights=w_all[share])
+    _, k = np.unique(g[share[first]], return_inverse=True)  # the group of each distinct normal
+    k = k.ravel()
+    count = np.bincount(k)
+    weight = np.bincount(k, weights=w_u)
+    total = np.stack([np.bincount(k, weights=w_u * n_u[:, j]) for j in range(3)], axis=1)
+    length = np.linalg.norm(total, axis=1)
+    worst = np.full(len(total), np.inf)
+    np.minimum.at(worst, k, np.einsum("ij,ij->i", n_u, total[k]) / np.maximum(length[k], 1e-300))
+    ok = (worst >= np.cos(max_angle)) & (count > 1) & (count <= most) & (weight > 0) & (length > 0)
+    out = np.zeros((m, int(count[ok].max()) if np.any(ok) else 1, 3))
+    out[:, 0] = nrm
+    # each shared group's distinct normals, in slots 0 .. count - 1 of every member's row
+    keep = np.flatnonzero(ok[k])
+    order = keep[np.argsort(k[keep], kind="stable")]
+    kk = k[order]
+    slot = np.arange(len(kk)) - np.searchsorted(kk, kk)
+    rows = np.zeros((len(count), out.shape[1], 3))
+    rows[kk, slot] = n_u[order] * (w_u[order] / weight[kk])[:, None]
+    member = share[ok[k[u]]]
+    out[member] = rows[k[u[ok[k[u]]]]]
+    return out
+
+
+def gather_axis(spread: np.ndarray) -> np.ndarray:
+    """(m, 3) the unit normal a gather for the weighted normals `spread` (m, k, 3) casts about."""
+    total = np.asarray(spread, np.float64).sum(axis=1)
+    return total / np.maximum(np.linalg.norm(total, axis=1, keepdims=True), 1e-300)
+
+
 def gather_unique(
     problem,
     radiosity: np.ndarray,
@@ -510,14 +599,20 @@ def gather_unique(
     triangles=None,
     progress: Callable[[float], None] | None = None,
     near: NearField | None = None,
+    spread: np.ndarray | None = None,
 ) -> np.ndarray:
     """gather_indirect once per distinct (position, normal) (within 1e-7 of the scene extent),
     scattered back to every point: repeated points cost one gather (from the first one's
-    triangle)."""
+    triangle; spread: the first one's, see gather_indirect)."""
     pts = np.asarray(points, np.float64).reshape(-1, 3)
     nrm = np.asarray(normals, np.float64).reshape(-1, 3)
     first, inverse = unique_points(pts, nrm, 1e-7 * problem.index.surfaces.extent)
     tri = None if triangles is None else np.broadcast_to(np.asarray(triangles, np.int64), (len(pts),))[first]
     pts, nrm = pts[first], nrm[first]
-    out = gather_indirect(problem, radiosity, emission, pts, nrm, rays, tri, progress, near=near)
+    if spread is not None:
+        spread = np.asarray(spread, np.float64)
+        spread = spread.reshape(len(inverse), spread.shape[-2], 3)[first]
+    out = gather_indirect(
+        problem, radiosity, emission, pts, nrm, rays, tri, progress, near=near, spread=spread
+    )
     return out[inverse]

@@ -196,3 +196,42 @@ def test_corners_of_a_triangle_without_area_do_not_darken_the_vertex_they_share(
     # without the rule (all three corners weighed by angle): vertex 0 read (pi/2 + 0) / (pi/2 + pi)
     bake.no_area = np.array([False, False])
     assert bake.domain_values(corner, "POINT")[0, 0] < 0.4
+
+
+def test_a_flat_shaded_sphere_gathers_once_per_vertex_for_the_point_domain(ovrad, fresh_scene, monkeypatch):
+    """A vertex of a flat-shaded sphere (faces 22.5 degrees apart) gathers once for all the faces
+    around it when the vertex domain averages them (gather.shared_normals), once per face for the
+    face corner domain; both hold the furnace answer inside a closed furnace box."""
+    fresh_scene.ovrad.patch_count = 400
+    fresh_scene.ovrad.solve_tolerance = 1e-4
+    mat = blender_scenes.principled("furnace", (RHO,) * 3, LE)
+    box = blender_scenes.closed_box("Box", 3, mat)
+    bpy.ops.mesh.primitive_uv_sphere_add(segments=16, ring_count=8, radius=0.5)
+    sphere = bpy.context.active_object
+    sphere.data.materials.append(mat)
+    blender_scenes.select(sphere, box)
+    assert bpy.ops.ovrad.generate_atlas() == {"FINISHED"}
+    assert bpy.ops.ovrad.solve() == {"FINISHED"}
+    blender_scenes.select(sphere)
+    gather = ovrad.ovrad_addon.gather
+    counted = []
+    original = gather.gather_indirect
+
+    def counting(problem, radiosity, emission, points, *args, **kwargs):
+        counted.append(int(np.sum(np.linalg.norm(points, axis=1) < 0.6)))  # the sphere's (radius 0.5)
+        return original(problem, radiosity, emission, points, *args, **kwargs)
+
+    monkeypatch.setattr(gather, "gather_indirect", counting)
+    mesh = sphere.data
+    gathered = {}
+    for domain in ("POINT", "CORNER"):
+        counted.clear()
+        assert bpy.ops.ovrad.bake_vertex(domain=domain, attribute=domain) == {"FINISHED"}
+        np.testing.assert_allclose(colors(mesh, domain)[:, :3], LE / (1 - RHO), rtol=0.02)
+        gathered[domain] = sum(counted)
+    # once per vertex for POINT; for CORNER once per face and vertex (a quad's two triangles may
+    # count twice: their normals, from float32 positions, differ in the last digits)
+    per_face = sum(len(p.vertices) for p in mesh.polygons)
+    assert len(mesh.vertices) == 114 and per_face == 480
+    assert gathered["POINT"] == len(mesh.vertices)
+    assert gathered["CORNER"] >= per_face
