@@ -182,3 +182,40 @@ def test_a_curved_piece_smaller_than_a_patch_gets_one(monkeypatch):
     large, n_large = piece(0.1)
     assert triangle_geometry(large)[0].sum() > 2 * disk
     assert len(placement.place_curved(large, n_large, spacing, overlap, 1.0, seed=1).radii) > 2
+
+
+def boxes_in_a_room(count: int = 40, seed: int = 4) -> Surfaces:
+    """A closed 2 m room holding `count` boxes of 4-25 cm: many small rectangular sheets, whose
+    border cells and one-patch floors make a large part of the patch count."""
+    rng = np.random.default_rng(seed)
+    parts = list(scenes.box_faces((-1, -1, 0), (1, 1, 2), inward=True))
+    for _ in range(count):
+        lo = rng.uniform([-0.9, -0.9, 0.1], [0.7, 0.7, 1.6])
+        parts += scenes.box_faces(lo, lo + rng.uniform(0.04, 0.25, 3))
+    v, t, o = scenes.merge(parts)
+    return Surfaces.from_arrays(v, t, o, reflectance=[0.5] * 3)
+
+
+@pytest.mark.parametrize("target", [1500, 4000])
+def test_the_first_placement_counts_borders_and_small_sheets(monkeypatch, target):
+    """The first spacing counts each sheet as the cells of the rectangle of its area and perimeter:
+    it lands within the count tolerance and places once. Counting the area alone, the first
+    placement is more than the tolerance over and a second one follows."""
+    from ovrad_addon import atlas as atlas_mod
+
+    s = boxes_in_a_room()
+    calls = []
+    place = atlas_mod._place_all
+
+    def counting(index, settings, spacing):
+        placed, total = place(index, settings, spacing)
+        calls.append(total)
+        return placed, total
+
+    monkeypatch.setattr(atlas_mod, "_place_all", counting)
+    build_atlas(s, AtlasSettings(patch_count=target))
+    assert len(calls) == 1 and abs(calls[0] / target - 1) <= atlas_mod.COUNT_TOLERANCE
+    calls.clear()
+    monkeypatch.setattr(atlas_mod, "_base_for_count", lambda a, p, d, n: float(np.sqrt(np.sum(a * d**2) / n)))
+    build_atlas(s, AtlasSettings(patch_count=target))
+    assert calls[0] / target - 1 > atlas_mod.COUNT_TOLERANCE and len(calls) >= 2
