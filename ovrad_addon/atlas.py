@@ -235,25 +235,6 @@ class SurfaceIndex:
         )
 
     @cached_property
-    def sheet_perimeter(self) -> np.ndarray:
-        """(n_sheets,) length of each sheet's border: its charts' edges that one of their triangles
-        uses (by vertex index: a mesh whose faces share no vertices is all border)."""
-        ch, s = self.charts, self.surfaces
-        tri = np.flatnonzero(ch.chart >= 0)
-        v = s.triangles[tri]
-        a, b = v.ravel(), v[:, [1, 2, 0]].ravel()
-        lo, hi, chart = np.minimum(a, b), np.maximum(a, b), np.repeat(ch.chart[tri], 3)
-        order = np.lexsort((hi, lo, chart))
-        lo, hi, chart = lo[order], hi[order], chart[order]
-        same = (chart[1:] == chart[:-1]) & (lo[1:] == lo[:-1]) & (hi[1:] == hi[:-1])
-        once = ~(np.append(same, False) | np.insert(same, 0, False))
-        length = np.linalg.norm(s.vertices[hi[once]] - s.vertices[lo[once]], axis=1)
-        per_chart = np.bincount(chart[once], weights=length, minlength=ch.count)
-        has = self.sheet_table >= 0
-        rows = np.nonzero(has)[0]
-        return np.bincount(self.sheet_table[has], weights=per_chart[rows], minlength=len(self.sheet_chart))
-
-    @cached_property
     def sheet_area(self) -> np.ndarray:
         """(n_sheets,) area of each sheet (a clutter sheet: of all its charts)."""
         has = self.sheet_table >= 0
@@ -397,45 +378,8 @@ def _sheet_spacing(index: SurfaceIndex, settings: AtlasSettings) -> np.ndarray:
     if settings.patch_size is not None:
         base = settings.patch_size
     else:
-        base = _base_for_count(area, index.sheet_perimeter, density, settings.patch_count)
+        base = float(np.sqrt(np.sum(area * density**2) / settings.patch_count))
     return base / density
-
-
-def _base_for_count(area: np.ndarray, perimeter: np.ndarray, density: np.ndarray, count: int) -> float:
-    """The base spacing at which the sheets (area, perimeter, density: spacing = base / density)
-    would get about `count` patches in all. A sheet counts as the rectangle of its area and
-    perimeter, W x H, cut in ceil(W / s) x ceil(H / s) cells (a grid fitted to its bounding
-    rectangle; a sheet smaller than a cell still gets one). On the production room's 21 778 planar
-    sheets that is within 1 % of what placing makes at three spacings; counting the area alone
-    (A / s^2), its first placement at a target of 100 000 made 136 000 patches, and every Generate
-    placed twice. Where no spacing gets as few (more sheets than `count`), the area alone decides."""
-    plain = float(np.sqrt(np.sum(area * density**2) / count))
-    if not np.isfinite(plain) or plain <= 0:
-        return plain
-    half = 0.25 * perimeter
-    width = half + np.sqrt(np.maximum(half * half - area, 0.0))
-    height = area / np.maximum(width, 1e-300)
-
-    def total(base: float) -> float:
-        s = base / density
-        cells = np.maximum(np.ceil(width / s - 1e-9), 1.0) * np.maximum(np.ceil(height / s - 1e-9), 1.0)
-        return float(np.sum(cells))
-
-    hi = plain  # total(plain) >= count: every sheet counts at least its area's cells
-    for _ in range(60):
-        if total(hi) <= count:
-            break
-        hi *= 2.0
-    else:
-        return plain
-    lo = hi / 2.0 if hi > plain else plain
-    for _ in range(50):  # the total falls as the spacing grows
-        mid = np.sqrt(lo * hi)
-        if total(mid) > count:
-            lo = mid
-        else:
-            hi = mid
-    return float(hi)
 
 
 def _place_all(index: SurfaceIndex, settings: AtlasSettings, spacing: np.ndarray) -> tuple[list[Placed], int]:
@@ -562,20 +506,19 @@ def build_atlas_and_overlaps(
     report_stage(progress, 0.1, "placing patches")
     placed, total = _place_all(index, settings, spacing)
     if settings.patch_size is None and total <= settings.max_patches:
-        # The first spacing counts border cells and one patch per small sheet (_base_for_count);
-        # where the count is still off by more than COUNT_TOLERANCE, up to three corrections, the
-        # first with count ~ 1 / spacing^2, the others with the exponent the last two placements
-        # showed (many small charts, whose border patches make the count go as 1 / spacing); the
-        # closest count is kept.
-        best, k = (placed, total), 2.0
-        for _ in range(3):
-            if abs(total / settings.patch_count - 1.0) <= COUNT_TOLERANCE:
+        # Boundary cells add to the count; one correction (count ~ 1 / spacing^2) brings it near
+        # the target. Where it does not (many small charts, whose border patches make the count
+        # go as 1 / spacing: the production room got 33 228 patches for 25 000), up to two more,
+        # each with the exponent the last two placements showed; the closest count is kept.
+        best, k = None, 2.0
+        for step in range(3):
+            if step and abs(total / settings.patch_count - 1.0) <= COUNT_TOLERANCE:
                 break
             before = (spacing, total)
             spacing = spacing * (total / settings.patch_count) ** (1.0 / k)
             placed, total = _place_all(index, settings, spacing)
-            closer = abs(total - settings.patch_count) < abs(best[1] - settings.patch_count)
-            if closer and total <= settings.max_patches:
+            closer = best is None or abs(total - settings.patch_count) < abs(best[1] - settings.patch_count)
+            if step == 0 or (closer and total <= settings.max_patches):
                 best = (placed, total)
             if total > settings.max_patches or total <= 0:
                 break

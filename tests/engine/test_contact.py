@@ -203,9 +203,8 @@ def test_far_rays_next_to_a_lamp_do_not_read_the_light_over_it(monkeypatch):
 
     cut = _room_light(cut=True, count=3000)
     whole = _room_light(cut=False, count=3000)
-    # measured: the means 0.7 % apart, every point within 2.9 %; clustered together: up to 7.3 %,
-    # beyond the 5 % the points are held to (an earlier placement of the 3 000 patches: 0.1 / 2.2 /
-    # 13.7 %; 20 000 patches: +0.5 % against +5.8 % in the mean)
+    # measured: the means 0.1 % apart, every point within 2.2 %; clustered together: up to 13.7 %
+    # (20 000 patches: +0.5 % against +5.8 % in the mean)
     assert abs(whole.mean() / cut.mean() - 1.0) < 0.01
     np.testing.assert_allclose(whole, cut, rtol=0.05)
     build = clusters.Clusters.build.__func__
@@ -213,7 +212,7 @@ def test_far_rays_next_to_a_lamp_do_not_read_the_light_over_it(monkeypatch):
         clusters.Clusters, "build", classmethod(lambda c, a, p, far, covered=None: build(c, a, p, far))
     )
     mixed = _room_light(cut=False, count=3000)
-    assert np.abs(mixed / cut - 1.0).max() > 0.06
+    assert np.abs(mixed / cut - 1.0).max() > 0.08
 
 
 def test_a_patch_straddling_a_covers_rim_splits_there():

@@ -419,9 +419,8 @@ def test_near_hits_resolve_a_shadow_at_a_walls_foot(cuts):
         return np.abs(signed(reach, size))
 
     patches, default, far = error(None), error(NearField.reach), error(4.0)
-    # measured (heights 1, 2, 4 cm): patches only 42 / 19 / 5 %, default reach 0.7 / 1.7-1.8 /
-    # 3.2-3.4 %; reach 4: 0.34 / 0.30 / 0.19 % (8 cuts), 0.54 / 0.30 / 0.10 % (64 cuts) (an earlier
-    # placement of the 600 patches: patches only 0.03 / 22 / 21 %, default reach 3.9-4.1 / 8.1 / 11 %)
+    # measured (heights 1, 2, 4 cm): patches only 0.03 / 22 / 21 %, default reach 3.9-4.1 / 8.1 /
+    # 11 %; reach 4: 0.36 / 0.19 / 0.01 % (8 cuts), 0.56 / 0.19 / 0.11 % (64 cuts)
     assert np.sqrt(np.mean(patches**2)) > 0.1
     assert np.sqrt(np.mean(default**2)) < 0.6 * np.sqrt(np.mean(patches**2))
     assert np.all(far < (5e-3 if cuts == 8 else 1e-2))
