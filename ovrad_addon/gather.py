@@ -146,7 +146,8 @@ def gather_indirect(
     must be their gather_axis): a ray in direction d then counts sum_j max(0, N_j . d) / (n . d)
     times what it brings, so the gather estimates the weighted mean of the irradiances about each
     N_j; the light from below n's horizon but above an N_j's, which no ray samples, is taken as the
-    light of the rays under HORIZON (exact under an even sky and for light from above every horizon).
+    light of the lowest rays (those under 20 degrees of elevation, at least one; exact under an even
+    sky and for light from above every horizon).
     """
     pts = np.asarray(points, np.float64).reshape(-1, 3)
     nrm = np.asarray(normals, np.float64).reshape(-1, 3)
@@ -163,6 +164,9 @@ def gather_indirect(
         pts = inside(index.surfaces, pts, triangles)
     values = np.asarray(radiosity, np.float64) - np.asarray(emission, np.float64)
     local = hemisphere_pattern(rays)
+    # the rays that tell the light seen low (a spread's missed part): a cosine pattern puts
+    # sin^2 of its rays under an elevation; at least the lowest one
+    lowest = np.argsort(local[:, 2], kind="stable")[: max(1, int(round(rays * HORIZON**2)))]
     t_all, b_all = tangent_frame(nrm)
     eps = 1e-6 * index.surfaces.extent
     _ = atlas.grid  # build the lookup once, before the threads need it
@@ -207,7 +211,7 @@ def gather_indirect(
         # the light from between the axis's horizon and a normal's, which no ray samples: for a
         # normal N_j at angle a_j from the axis it is (1 - cos a_j) / 2 of light arriving evenly from
         # there, so sum_j |N_j| (1 - cos a_j) / 2 = (1 - |sum_j N_j|) / 2 of the light seen low
-        low = g[:, local[:, 2] < HORIZON, :].mean(axis=1)
+        low = g[:, lowest, :].mean(axis=1)
         missed = 0.5 * (1.0 - np.linalg.norm(sp[several].sum(axis=1), axis=1))
         d = dirs.reshape(-1, rays, 3)[several]
         cos = np.maximum(np.einsum("prj,pkj->prk", d, sp[several]), 0.0).sum(axis=2)
@@ -530,7 +534,7 @@ def unique_points(points, normals, tolerance: float) -> tuple[np.ndarray, np.nda
 # around it.
 SHARE_ANGLE = np.radians(20.0)
 SHARE_MOST = 16  # distinct normals per shared gather at most (more: one gather per face)
-HORIZON = np.sin(np.radians(20.0))  # rays this low (cosine to the axis) tell the light seen low
+HORIZON = np.sin(np.radians(20.0))  # rays under this elevation (its sine) tell the light seen low
 
 
 def shared_normals(

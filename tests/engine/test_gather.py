@@ -285,6 +285,9 @@ def test_one_gather_for_several_normals_is_the_mean_of_their_gathers(scene):
     axis = gather_axis(spread)
     H = gather_unique(problem, B, np.zeros_like(B), np.tile(p, (4, 1)), axis, 16384, spread=spread)
     np.testing.assert_allclose(H[:, 0], want, rtol=3e-3)
+    # a pattern of a few rays has none under 20 degrees: its lowest one tells the light seen low
+    few = gather_unique(problem, B, np.zeros_like(B), np.tile(p, (4, 1)), axis, 4, spread=spread)
+    assert np.all(np.isfinite(few))
     # without the rays' weights, the gather about the mean normal alone
     plain = gather_unique(problem, B, np.zeros_like(B), p[None], axis[:1], 16384)[0, 0]
     if scene == "square":  # is 2 % too bright: the normals see the square 7 % apart
