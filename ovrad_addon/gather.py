@@ -582,8 +582,9 @@ def shared_normals(
     slot = np.arange(len(kk)) - np.searchsorted(kk, kk)
     rows = np.zeros((len(count), out.shape[1], 3))
     rows[kk, slot] = n_u[order] * (w_u[order] / weight[kk])[:, None]
-    member = share[ok[k[u]]]
-    out[member] = rows[k[u[ok[k[u]]]]]
+    group = k[u]  # each sharing point's group
+    sharing = ok[group]
+    out[share[sharing]] = rows[group[sharing]]
     return out
 
 

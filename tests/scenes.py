@@ -139,6 +139,19 @@ def bent_leaf(rng: np.random.Generator, size: float, sag: float, n: int) -> tupl
     return p @ q.T, plane(2.0, n)[1]
 
 
+def leaves_in_a_room(room, count, sizes, sag, n, where, seed):
+    """(vertices, triangles, object) of a closed room (box corners `room`, inward faces; object 0)
+    holding `count` bent leaves (object 1): sizes (lo, hi) drawn uniformly, bent by `sag` on an
+    n x n grid (bent_leaf), centred uniformly between the corners `where`."""
+    rng = np.random.default_rng(seed)
+    parts, objs = list(box_faces(*room, inward=True)), [0] * 6
+    for _ in range(count):
+        v, t = bent_leaf(rng, rng.uniform(*sizes), sag, n)
+        parts.append((v + rng.uniform(*where), t))
+        objs.append(1)
+    return merge(parts, obj=objs)
+
+
 def thin_wall_rooms(gap: float = 0.01) -> Surfaces:
     """Two closed rooms (inward normals) sharing a thin wall of thickness `gap` at x = 0."""
     left = box_faces((-1, 0, 0), (-gap / 2, 1, 1), inward=True)

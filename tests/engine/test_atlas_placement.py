@@ -187,13 +187,8 @@ def test_a_curved_piece_smaller_than_a_patch_gets_one(monkeypatch):
 def bent_pieces_in_a_room(count: int = 30, seed: int = 11) -> Surfaces:
     """A closed 2 m room holding `count` bent leaves of 5-10 cm: curved pieces of one or two patch
     disks at a 9 cm patch size, the voxel grid cutting slivers off many of them."""
-    rng = np.random.default_rng(seed)
-    parts, objs = list(scenes.box_faces((-1, -1, 0), (1, 1, 2), inward=True)), [0] * 6
-    for _ in range(count):
-        v, t = scenes.bent_leaf(rng, rng.uniform(0.05, 0.1), 0.6, 6)
-        parts.append((v + rng.uniform([-0.7, -0.7, 0.3], [0.7, 0.7, 1.6]), t))
-        objs.append(1)
-    v, t, o = scenes.merge(parts, obj=objs)
+    room, where = ((-1, -1, 0), (1, 1, 2)), ([-0.7, -0.7, 0.3], [0.7, 0.7, 1.6])
+    v, t, o = scenes.leaves_in_a_room(room, count, (0.05, 0.1), 0.6, 6, where, seed)
     return Surfaces.from_arrays(v, t, o, reflectance=[0.5] * 3, object_names=["room", "leaves"])
 
 

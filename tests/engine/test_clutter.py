@@ -112,13 +112,8 @@ def test_furnace_with_clutter_is_exact(room, atlas):
 def small_cluttered_room(leaves: int = 300, seed: int = 5) -> Surfaces:
     """A closed 40 cm room holding 300 bent leaves of 1-3 cm: at a few hundred patches their
     charts are about the grid's spacing, so how many get a grid changes with it."""
-    rng = np.random.default_rng(seed)
-    parts, objs = list(scenes.box_faces((-0.2, -0.2, 0), (0.2, 0.2, 0.4), inward=True)), [0] * 6
-    for _ in range(leaves):
-        v, t = scenes.bent_leaf(rng, rng.uniform(0.01, 0.03), 0.3, 2)
-        parts.append((v + rng.uniform([-0.15, -0.15, 0.05], [0.15, 0.15, 0.35]), t))
-        objs.append(1)
-    v, t, o = scenes.merge(parts, obj=objs)
+    room, where = ((-0.2, -0.2, 0), (0.2, 0.2, 0.4)), ([-0.15, -0.15, 0.05], [0.15, 0.15, 0.35])
+    v, t, o = scenes.leaves_in_a_room(room, leaves, (0.01, 0.03), 0.3, 2, where, seed)
     return Surfaces.from_arrays(
         v, t, o, reflectance=[0.9] * 3, emission=[2.0] * 3, object_names=["room", "leaves"]
     )
