@@ -54,12 +54,12 @@ def one(count: int, beta: str, scene: str) -> dict:
     t0 = time.perf_counter()
     st = AtlasSettings(patch_count=count, beta=beta, max_patches=4_000_000)
     with peaks.stage("atlas"):
-        atlas, C = build_atlas_and_overlaps(s, st)
+        atlas, C, q = build_atlas_and_overlaps(s, st)
     t_atlas = time.perf_counter() - t0
     settings = SolveSettings()
     with peaks.stage("prepare"):
         # C as Generate keeps it with the atlas: the solve uses it instead of integrating it again
-        problem = prepare(s, atlas, settings, kept=[keep(s, atlas, C, st.quadrature, st.crease_angle)])
+        problem = prepare(s, atlas, settings, kept=[keep(s, atlas, C, q, st.crease_angle)])
     assert problem.kept == len(atlas)
     T = problem.transport
     # raw embree on the same rays: one batch the size the transport uses

@@ -12,6 +12,7 @@ from ..ovrad_addon import names
 from ..ovrad_addon.atlas import Atlas
 from ..ovrad_addon.errors import OvradError
 from ..ovrad_addon.kept_overlaps import KeptOverlaps
+from ..ovrad_addon.settings import FINE_QUADRATURE
 
 ATLAS_VERSION = 1
 ATLAS_SUFFIX = "_ovrad_atlas"
@@ -179,6 +180,7 @@ def _atlas_mesh(name: str, atlas: Atlas, kept: KeptOverlaps | None = None) -> bp
         mesh.edges.foreach_set("vertices", np.ascontiguousarray(kept.edges, np.int32).ravel())
         write_attribute(mesh, names.OVERLAP_C, kept.values, "FLOAT2", "EDGE")
         mesh[names.PROP_OVERLAP_KEY] = kept.key
+        mesh[names.PROP_OVERLAP_QUADRATURE] = int(kept.quadrature)
     mesh.update()
     return mesh
 
@@ -197,9 +199,11 @@ def read_kept(obj, start: int) -> KeptOverlaps | None:
     edges = np.empty(2 * len(mesh.edges), np.int32)
     mesh.edges.foreach_get("vertices", edges)
     diagonal = read_point_attribute(mesh, names.AREA)
-    return KeptOverlaps(
-        start, len(mesh.vertices), key, edges.reshape(-1, 2), read_attribute(mesh, names.OVERLAP_C), diagonal
-    )
+    quadrature = mesh.get(names.PROP_OVERLAP_QUADRATURE, FINE_QUADRATURE)  # kept before it was stored: 12
+    if not isinstance(quadrature, int) or not 2 <= quadrature <= 64:
+        return None
+    values = read_attribute(mesh, names.OVERLAP_C)
+    return KeptOverlaps(start, len(mesh.vertices), key, edges.reshape(-1, 2), values, diagonal, quadrature)
 
 
 def write_atlas(scene, source: str, atlas: Atlas, kept: KeptOverlaps | None = None) -> bpy.types.Object:

@@ -49,14 +49,17 @@ def refine_scene(context) -> tuple[int, int, int]:
     atlas = attach_sheets(atlas, index)
     B = np.pi * np.concatenate(radiance).astype(np.float64)
     settings = properties.atlas_settings(scene.ovrad, inputs.sources)
-    quadrature, crease = settings.quadrature, settings.crease_angle
+    crease = settings.crease_angle
     receivers = [k for k in inputs.kept if k.start < count]  # the environment's block is not needed
-    C = overlaps(inputs.surfaces, atlas, index, quadrature, receivers)[0]
+    # the stored atlas's C as a solve reads it (the kept blocks' own quadrature)
+    C = overlaps(inputs.surfaces, atlas, index, kept=receivers)[0]
     finer, replaced = refine(atlas, index, B, smallest=np.concatenate(smallest), C=C)
     if replaced == 0:
         return 0, count, count
+    finer = finer.as_stored()
+    quadrature = settings.rule_order(len(finer))  # as Generate would choose for the finer atlas
     with _progress(context) as progress:
-        finer, C = integrate(finer.as_stored(), index, quadrature, progress)
+        finer, C = integrate(finer, index, quadrature, progress)
     world = object_keys(inputs.surfaces)
     for i, (base, src) in enumerate(zip(bases, inputs.sources, strict=True)):
         sel = np.flatnonzero(finer.source_object == i)

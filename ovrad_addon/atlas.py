@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields, replace
 from dataclasses import fields as dataclass_fields
 from functools import cached_property
+from typing import NamedTuple
 
 import numpy as np
 from scipy.sparse import csr_matrix, diags
@@ -14,7 +15,7 @@ from . import clutter as clutter_mod
 from . import names
 from .contact import carry_over, split_at_contacts
 from .errors import OvradError
-from .placement import Placed, place_curved, place_planar, place_planar_small
+from .placement import Placed, grid_angle, place_curved, place_planar, place_planar_small
 from .progress import StageCallback, report_stage
 from .rays import EmbreeRays, NumpyRays, make_rays
 from .settings import AtlasSettings
@@ -382,8 +383,12 @@ def _sheet_spacing(index: SurfaceIndex, settings: AtlasSettings) -> np.ndarray:
     return base / density
 
 
-def _place_all(index: SurfaceIndex, settings: AtlasSettings, spacing: np.ndarray) -> tuple[list[Placed], int]:
-    """Place patches sheet by sheet; each Placed's triangle holds global triangle indices."""
+def _place_all(
+    index: SurfaceIndex, settings: AtlasSettings, spacing: np.ndarray, angles: dict[int, float] | None = None
+) -> tuple[list[Placed], int]:
+    """Place patches sheet by sheet; each Placed's triangle holds global triangle indices. angles:
+    planar sheets' grid angles (placement.grid_angle) by sheet, kept across placements (filled here)."""
+    angles = {} if angles is None else angles
     s = index.surfaces
     ch = index.charts
     ext = s.extent
@@ -436,7 +441,9 @@ def _place_all(index: SurfaceIndex, settings: AtlasSettings, spacing: np.ndarray
             corners = corners[:, ::-1]
         if index.flat[c]:
             nrm = side * (ch.normals[tri] * ch.areas[tri, None]).sum(axis=0)
-            p = place_planar(corners, nrm, spacing[k], settings.overlap, settings.shapes, ext)
+            if k not in angles:
+                angles[k] = grid_angle(corners, nrm)
+            p = place_planar(corners, nrm, spacing[k], settings.overlap, settings.shapes, ext, angles[k])
             p.thickness = p.thickness + 2.0 * index.deviation[c]
         else:
             p = place_curved(corners, side * ch.normals[tri], spacing[k], settings.overlap, ext, seed=int(k))
@@ -486,14 +493,23 @@ def build_atlas(
     return build_atlas_and_overlaps(surfaces, settings, progress, backend)[0]
 
 
+class Built(NamedTuple):
+    """What Generate makes: the atlas (as a file keeps it), its C (n x n, C[h, i] = c_ih) and the
+    quadrature C was integrated with (AtlasSettings.rule_order of the patches placed)."""
+
+    atlas: Atlas
+    C: csr_matrix
+    quadrature: int
+
+
 def build_atlas_and_overlaps(
     surfaces: Surfaces, settings: AtlasSettings, progress: StageCallback | None = None, backend: str = "auto"
-) -> tuple[Atlas, csr_matrix]:
-    """build_atlas(), and the C (n x n, C[h, i] = c_ih) it integrated with the settings' quadrature.
+) -> Built:
+    """build_atlas(), the C it integrated and the quadrature it took (Built).
 
     The atlas comes as a file keeps it (Atlas.as_stored) and C is integrated on that, so a solve
     of the stored atlas may use this C (overlap.py: a patch's row does not depend on the other
-    patches integrated with it) instead of integrating it again.
+    patches integrated with it) instead of integrating it again, with the same quadrature.
     """
     report_stage(progress, 0.0, "finding charts")
     index = index_surfaces(surfaces, settings, backend)
@@ -504,7 +520,8 @@ def build_atlas_and_overlaps(
     if estimate > settings.max_patches:  # refuse before allocating anything of that size
         raise _too_many(estimate, settings)
     report_stage(progress, 0.1, "placing patches")
-    placed, total = _place_all(index, settings, spacing)
+    angles: dict[int, float] = {}  # each planar sheet's grid turn, the same at every spacing
+    placed, total = _place_all(index, settings, spacing, angles)
     if settings.patch_size is None and total <= settings.max_patches:
         # Boundary cells add to the count; one correction (count ~ 1 / spacing^2) brings it near
         # the target. Where it does not (many small charts, whose border patches make the count
@@ -516,7 +533,7 @@ def build_atlas_and_overlaps(
                 break
             before = (spacing, total)
             spacing = spacing * (total / settings.patch_count) ** (1.0 / k)
-            placed, total = _place_all(index, settings, spacing)
+            placed, total = _place_all(index, settings, spacing, angles)
             closer = best is None or abs(total - settings.patch_count) < abs(best[1] - settings.patch_count)
             if step == 0 or (closer and total <= settings.max_patches):
                 best = (placed, total)
@@ -553,7 +570,8 @@ def build_atlas_and_overlaps(
     )
     # Patches cut by contact lines (a partition standing on the floor): one per side (contact.py).
     atlas = split_at_contacts(atlas, index).as_stored()
-    return integrate(atlas, index, settings.quadrature, progress, 0.2)
+    quadrature = settings.rule_order(len(atlas))
+    return Built(*integrate(atlas, index, quadrature, progress, 0.2), quadrature)
 
 
 def integrate(

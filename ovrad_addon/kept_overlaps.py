@@ -15,6 +15,9 @@ patches (every array C depends on), the world geometry they were integrated in (
 triangles in world space, in any object order: rays meet every object), the patches' own objects,
 the rule (quadrature, crease angle, RULE_VERSION) and the kept values themselves. Anything else
 (an edited atlas, a moved object, an atlas from an older version with no C) is integrated again.
+The quadrature is the block's own (KeptOverlaps.quadrature, kept beside the key; Generate chooses
+it by the atlas's size, AtlasSettings.rule_order): the key is checked with the rule the block was
+integrated with.
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix, triu
 
 from .atlas import Atlas
-from .settings import AtlasSettings
+from .settings import FINE_QUADRATURE, AtlasSettings
 from .surfaces import Surfaces
 
 # Raise when overlap.py integrates C differently (its rule, membership, contacts, clutter samples):
@@ -38,7 +41,8 @@ RULE_VERSION = 2  # 2: rows of repeated neighbourhoods copied (overlap.repeated_
 class KeptOverlaps:
     """The block of C of `count` patches of an atlas, from patch `start` on (one atlas object), as a
     file keeps it: edges (m, 2) int32 patch pairs i < j within the block, values (m, 2) float32
-    (C[i, j], C[j, i]), diagonal (count,) float32 c_kk, and key, the overlap_key() it was stored with."""
+    (C[i, j], C[j, i]), diagonal (count,) float32 c_kk, key, the overlap_key() it was stored with,
+    and quadrature, the rule it was integrated with (blocks kept before it was stored: 12)."""
 
     start: int
     count: int
@@ -46,6 +50,7 @@ class KeptOverlaps:
     edges: np.ndarray
     values: np.ndarray
     diagonal: np.ndarray
+    quadrature: int = FINE_QUADRATURE
 
     def matrix(self) -> csr_matrix:
         """The block (count x count, float64)."""
@@ -147,14 +152,15 @@ def keep(
     surfaces: or their object_keys() (computed once for many blocks)."""
     edges, values, diagonal = kept_form(C)
     key = overlap_key(surfaces, atlas, edges, values, diagonal, quadrature, crease_angle)
-    return KeptOverlaps(start, len(atlas), key, edges, values, diagonal)
+    return KeptOverlaps(start, len(atlas), key, edges, values, diagonal, quadrature)
 
 
 def usable(
-    surfaces: Surfaces, atlas: Atlas, kept: list[KeptOverlaps], quadrature: int
+    surfaces: Surfaces, atlas: Atlas, kept: list[KeptOverlaps]
 ) -> tuple[np.ndarray, csr_matrix | None]:
-    """The kept blocks that fit (their key is the key of what the solve reads now), as
-    (known (n,) bool: the patches whose rows and columns of C they give, C (n x n) holding them)."""
+    """The kept blocks that fit (their key, with their own quadrature, is the key of what the solve
+    reads now), as (known (n,) bool: the patches whose rows and columns of C they give, C (n x n)
+    holding them)."""
     n = len(atlas)
     known = np.zeros(n, bool)
     blocks = []
@@ -165,7 +171,7 @@ def usable(
             continue
         if len(k.diagonal) != k.count or (len(k.edges) and (k.edges.min() < 0 or k.edges.max() >= k.count)):
             continue
-        key = overlap_key(keys, atlas.select(part), k.edges, k.values, k.diagonal, quadrature)
+        key = overlap_key(keys, atlas.select(part), k.edges, k.values, k.diagonal, k.quadrature)
         if key != k.key:
             continue
         known[part] = True

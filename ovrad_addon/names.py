@@ -33,6 +33,8 @@ PROP_ESCAPED = "ovrad_escaped"
 PROP_ENVIRONMENT = "ovrad_environment_key"  # on the environment atlas: fingerprint of its surfaces
 # On an atlas object's mesh: the key of the overlaps kept on its edges (kept_overlaps.overlap_key).
 PROP_OVERLAP_KEY = "ovrad_overlap_key"
+# ... and the quadrature they were integrated with (AtlasSettings.rule_order; absent: 12).
+PROP_OVERLAP_QUADRATURE = "ovrad_overlap_quadrature"
 
 IMAGE_SUFFIX = "_ovrad"  # an image bake of object X is the image data block X + IMAGE_SUFFIX
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, fields, replace
+from functools import lru_cache
 
 import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix
@@ -39,9 +40,13 @@ class Quadrature:
 QUADRATURE_CHUNK = 8192  # patches per patch_quadrature pass
 
 
+@lru_cache(maxsize=64)
 def _gauss(n_sub: int) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss-Legendre nodes and weights on [0, 1] (read-only: one pair per order, shared)."""
     x, w = np.polynomial.legendre.leggauss(n_sub)
-    return 0.5 * (x + 1.0), 0.5 * w
+    x, w = 0.5 * (x + 1.0), 0.5 * w
+    x.flags.writeable = w.flags.writeable = False
+    return x, w
 
 
 def polar_rule(

@@ -39,7 +39,6 @@ from .solver import SolveState, factorize, inverse_areas, solve_progressive
 from .surfaces import Surfaces
 from .transport import Transport, gather_transport
 
-QUADRATURE = AtlasSettings().quadrature  # the rule of C at a solve: Generate's (so C may be kept)
 GATHER_Q = 4  # polar rule of the receiver points (transport, direct light, patch emission)
 # Transport rays cast at most (SolveSettings.max_rays): 32 rays per receiver point reach it at
 # about 16 000 box patches; larger atlases cast fewer per point (see gather_transport).
@@ -250,13 +249,13 @@ def prepare(
     surfaces: Surfaces,
     atlas: Atlas,
     settings: SolveSettings = SolveSettings(),
-    quadrature: int = QUADRATURE,
+    quadrature: int | None = None,
     progress: StageCallback | None = None,
     backend: str = "auto",
     kept: Sequence[KeptOverlaps] = (),
     drop_unsupported: bool = False,
 ) -> Problem:
-    """Sheets, the overlap matrix C (fine rule of `quadrature`) and the transport R for an atlas.
+    """Sheets, the overlap matrix C and the transport R for an atlas (quadrature: see overlaps()).
 
     kept: blocks of C kept with the atlas (kept_overlaps.py); those whose key still fits are used,
     only the other patches' rows are integrated. drop_unsupported: patches whose support holds no
@@ -299,13 +298,17 @@ def overlaps(
     surfaces: Surfaces,
     atlas: Atlas,
     index: SurfaceIndex,
-    quadrature: int = QUADRATURE,
+    quadrature: int | None = None,
     kept: Sequence[KeptOverlaps] = (),
     progress: StageCallback | None = None,
 ) -> tuple[csr_matrix, np.ndarray, np.ndarray]:
     """C and the support areas of an atlas (sheets attached to index), from the kept blocks that
-    still fit and integration of the other rows; and known (n,) bool, the rows the kept blocks gave."""
-    known, C_kept = usable(surfaces, atlas, list(kept), quadrature)
+    still fit and integration of the other rows; and known (n,) bool, the rows the kept blocks gave.
+    quadrature: the rule of the rows integrated here; None: the kept blocks' (the finest of them),
+    else AtlasSettings.rule_order of the atlas's size (what Generate would choose)."""
+    if quadrature is None:
+        quadrature = max((k.quadrature for k in kept), default=AtlasSettings().rule_order(len(atlas)))
+    known, C_kept = usable(surfaces, atlas, list(kept))
     todo = np.flatnonzero(~known)
     report_stage(progress, 0.05, "integrating overlaps" if len(todo) else "overlaps kept with the atlas")
     C, support = overlap_matrix(

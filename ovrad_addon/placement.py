@@ -87,6 +87,16 @@ def _segment_touches(a: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarra
     return ok
 
 
+def grid_angle(corners: np.ndarray, normal: np.ndarray) -> float:
+    """The turn of a planar sheet's grid (triangles (T, 3, 3), normal (3,)) from tangent_frame's
+    first axis: its minimum-area bounding rectangle's (plane_frame). It does not depend on the
+    spacing, so placing a sheet again may reuse it (place_planar's `angle`)."""
+    n = normal / np.linalg.norm(normal)
+    e1, e2 = tangent_frame(n)
+    rel = corners.reshape(-1, 3) - corners.reshape(-1, 3).mean(axis=0)
+    return plane_frame(np.stack([rel @ e1, rel @ e2], axis=-1))
+
+
 def place_planar(
     corners: np.ndarray,
     normal: np.ndarray,
@@ -94,14 +104,15 @@ def place_planar(
     overlap: float,
     shapes: str,
     extent: float,
+    angle: float | None = None,
 ) -> Placed:
-    """Grid patches on one planar sheet given its triangles (T, 3, 3) and the sheet's unit normal."""
+    """Grid patches on one planar sheet given its triangles (T, 3, 3) and the sheet's unit normal;
+    angle: its grid_angle() when known."""
     n = normal / np.linalg.norm(normal)
     e1, e2 = tangent_frame(n)
     origin = corners.reshape(-1, 3).mean(axis=0)
     rel = corners - origin
-    p2 = np.stack([rel @ e1, rel @ e2], axis=-1)  # (T, 3, 2)
-    ang = plane_frame(p2.reshape(-1, 2))
+    ang = grid_angle(corners, normal) if angle is None else angle
     c, s = np.cos(ang), np.sin(ang)
     t1 = c * e1 + s * e2
     t2 = np.cross(n, t1)

@@ -133,3 +133,24 @@ def test_generating_again_replaces_the_kept_c(saved, ovrad):
     assert after["Box_ovrad_atlas"] == before["Box_ovrad_atlas"]
     stats, _ = solve(ovrad)
     assert stats["overlaps_kept"] == sum(len(o.data.vertices) for o in atlas_objects())
+
+
+def test_a_coarser_rule_is_kept_with_its_c_through_the_file(ovrad, fresh_scene, tmp_path, monkeypatch):
+    """An atlas large enough for the coarse rule (here: every atlas, AtlasSettings.rule_order) keeps
+    that rule beside its C; after reopening, a solve whose own choice is the fine rule uses it."""
+    rules = ovrad.ovrad_addon.settings
+    monkeypatch.setattr(rules, "COARSE_FROM", 1)
+    build()
+    for name in RECEIVERS:
+        mesh = bpy.data.objects[name + "_ovrad_atlas"].data
+        assert mesh["ovrad_overlap_quadrature"] == rules.COARSE_QUADRATURE
+    monkeypatch.setattr(rules, "COARSE_FROM", 10**9)
+    reopen(tmp_path / "coarse.blend")
+    stats, _ = solve(ovrad)
+    # the environment atlas is built in this solve, its C kept from its building
+    assert stats["overlaps_kept"] == patches("Floor_ovrad_atlas", "Box_ovrad_atlas", "ovrad_environment")
+    # the rule's record removed: read as the fine rule, the key no longer fits
+    for name in RECEIVERS:
+        del bpy.data.objects[name + "_ovrad_atlas"].data["ovrad_overlap_quadrature"]
+    stats, _ = solve(ovrad)
+    assert stats["overlaps_kept"] == patches("ovrad_environment")

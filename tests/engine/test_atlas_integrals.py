@@ -8,7 +8,7 @@ import pytest
 import scenes
 from ovrad_addon.atlas import Atlas, build_atlas, index_surfaces
 from ovrad_addon.overlap import alpha_at, overlap_matrix, patch_average, reconstruct
-from ovrad_addon.settings import AtlasSettings
+from ovrad_addon.settings import FINE_QUADRATURE, AtlasSettings
 from ovrad_addon.surfaces import Surfaces
 
 
@@ -66,7 +66,7 @@ def test_two_box_disks_overlap_coefficient_is_half_the_lens_area():
     found = []
     for turn in np.arange(10) / 10:
         C, support = overlap_matrix(
-            replace(atlas, random=np.array([turn, (turn + 0.35) % 1])), index, q=AtlasSettings().quadrature
+            replace(atlas, random=np.array([turn, (turn + 0.35) % 1])), index, q=FINE_QUADRATURE
         )
         found.append([C[0, 1], C[1, 0], C[0, 0]])
         np.testing.assert_allclose(support, np.pi * r * r, rtol=1e-12)
@@ -126,7 +126,7 @@ def test_overlap_rows_sum_to_support_area_and_effective_areas_to_surface_area(na
     settings = AtlasSettings(patch_count=800)
     atlas = build_atlas(s, settings)
     index = index_surfaces(s, settings)
-    C, support = overlap_matrix(atlas, index, settings.quadrature)
+    C, support = overlap_matrix(atlas, index, settings.rule_order(len(atlas)))
     np.testing.assert_allclose(np.asarray(C.sum(axis=1)).ravel(), support, rtol=1e-9)
     # every patch sheet is one side of the surface: sum of c_kk = area of the covered sides
     sides = (index.sheet_table >= 0).sum(axis=1)
@@ -217,7 +217,7 @@ def test_support_of_a_disk_on_a_strip_narrower_than_its_rule_matches_the_closed_
         beta="smooth",
     )
     exact = strip_area(r, width)
-    q = AtlasSettings().quadrature
+    q = FINE_QUADRATURE
     found = [overlap_matrix(replace(atlas, random=np.array([t])), index, q)[1][0] for t in np.arange(10) / 10]
     np.testing.assert_allclose(found, exact, rtol=0.07)
     np.testing.assert_allclose(np.mean(found), exact, rtol=5e-3)

@@ -32,7 +32,7 @@ def test_patches_never_cross_a_thin_wall_or_a_crease():
         np.einsum("ij,ij->i", atlas.normals[cols], index.charts.normals[tri[rows]]), 1.0
     )
     # quadrature points of every patch stay on that patch's own face
-    q = patch_quadrature(atlas, index, np.arange(len(atlas)), settings.quadrature)
+    q = patch_quadrature(atlas, index, np.arange(len(atlas)), settings.rule_order(len(atlas)))
     on = q.triangle >= 0
     assert np.all(index.charts.chart[q.triangle[on]] == index.sheet_chart[atlas.sheet[q.owner[on]]])
 
@@ -204,7 +204,7 @@ def test_voxel_slivers_join_a_neighbour_so_no_two_patches_nearly_coincide(monkey
     s = bent_pieces_in_a_room()
 
     def nearly_coincident():
-        atlas, C = build_atlas_and_overlaps(s, AtlasSettings(patch_size=0.09))
+        atlas, C, _ = build_atlas_and_overlaps(s, AtlasSettings(patch_size=0.09))
         coo, csr = C.tocoo(), C.tocsr()
         d = csr.diagonal()
         pair = (coo.row != coo.col) & (atlas.source_object[coo.row] == 1)

@@ -24,7 +24,7 @@ def closed_room(shape: str, rho: float, patch_count: int = 200, beta: str = "smo
     st = AtlasSettings(patch_count=patch_count, beta=beta, overlap=overlap)
     atlas = build_atlas(s, st)
     index = index_surfaces(s, st)
-    C, support = overlap_matrix(atlas, index, st.quadrature)
+    C, support = overlap_matrix(atlas, index, st.rule_order(len(atlas)))
     atlas = replace(atlas, support_area=support, effective_area=C.diagonal().copy())
     return s, atlas, index, C
 
@@ -32,7 +32,7 @@ def closed_room(shape: str, rho: float, patch_count: int = 200, beta: str = "smo
 @pytest.fixture(scope="module")
 def cornell():
     s = scenes.cornell()
-    atlas, _ = build_atlas_and_overlaps(s, AtlasSettings(patch_count=2000))
+    atlas = build_atlas_and_overlaps(s, AtlasSettings(patch_count=2000)).atlas
     problem = prepare(s, atlas, SolveSettings(cluster_angle=0.0))
     pts, tri = scenes.sample_surface(s, 20_000, seed=3)
     return problem, alpha_at(problem.atlas, problem.index, pts, tri, 1)
@@ -105,7 +105,7 @@ def test_shooting_through_the_factors_reaches_the_direct_solution():
     st = AtlasSettings(patch_count=200, overlap=1.6)
     atlas = build_atlas(s, st)
     index = index_surfaces(s, st)
-    C, support = overlap_matrix(atlas, index, st.quadrature)
+    C, support = overlap_matrix(atlas, index, st.rule_order(len(atlas)))
     atlas = replace(atlas, support_area=support, effective_area=C.diagonal().copy())
     T = gather_transport(atlas, index, far=1.0)
     assert T.links.nnz > 0

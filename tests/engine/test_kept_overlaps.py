@@ -10,15 +10,17 @@ import pytest
 from scipy.sparse import csr_matrix
 
 import scenes
+from ovrad_addon import settings as settings_mod
 from ovrad_addon.atlas import build_atlas_and_overlaps
 from ovrad_addon.kept_overlaps import KeptOverlaps, keep, kept_form, usable
 from ovrad_addon.names import SHAPE_BALL
 from ovrad_addon.overlap import overlap_matrix
 from ovrad_addon.pipeline import SolveSettings, attach_sheets, both_sides_index, prepare, solve
-from ovrad_addon.settings import AtlasSettings
+from ovrad_addon.settings import COARSE_QUADRATURE, FINE_QUADRATURE, AtlasSettings
 from ovrad_addon.surfaces import Surfaces
 
 SETTINGS = AtlasSettings(patch_count=500)
+QUADRATURE = SETTINGS.rule_order(SETTINGS.patch_count)  # a small atlas: the fine rule
 FAST = SolveSettings(min_rays=0, rays_per_point=8, gather_rays=0)
 NAMES = ["room", "box", "partition", "leaves", "ball", "lamp", "shade"]
 
@@ -75,9 +77,7 @@ def blocks(s: Surfaces, atlas, C) -> list[KeptOverlaps]:
     for o in np.unique(atlas.source_object):
         sel = np.flatnonzero(atlas.source_object == o)
         assert np.array_equal(sel, start + np.arange(len(sel))), "an object's patches are together"
-        out.append(
-            keep(s, atlas.select(sel), C[sel][:, sel], SETTINGS.quadrature, SETTINGS.crease_angle, start)
-        )
+        out.append(keep(s, atlas.select(sel), C[sel][:, sel], QUADRATURE, SETTINGS.crease_angle, start))
         start += len(sel)
     return out
 
@@ -85,7 +85,8 @@ def blocks(s: Surfaces, atlas, C) -> list[KeptOverlaps]:
 @pytest.fixture(scope="module")
 def room():
     s = busy_room()
-    atlas, C = build_atlas_and_overlaps(s, SETTINGS)
+    atlas, C, quadrature = build_atlas_and_overlaps(s, SETTINGS)
+    assert quadrature == QUADRATURE == FINE_QUADRATURE
     return s, atlas, C
 
 
@@ -102,7 +103,7 @@ def test_generate_integrates_the_c_a_solve_integrates(room):
     (the dropped patches under the box are gone from both, and their neighbours' rows too)."""
     s, atlas, C = room
     index = both_sides_index(s, atlas=atlas)
-    again, support = overlap_matrix(attach_sheets(atlas, index), index, SETTINGS.quadrature)
+    again, support = overlap_matrix(attach_sheets(atlas, index), index, QUADRATURE)
     assert abs(again - C).max() == 0.0
     np.testing.assert_array_equal(support, atlas.support_area)
     np.testing.assert_array_equal(C.diagonal(), atlas.effective_area)
@@ -115,13 +116,13 @@ def test_an_objects_rows_do_not_depend_on_the_other_objects(room):
     order = np.concatenate([np.flatnonzero(atlas.source_object == o) for o in (4, 2, 0, 3, 1)])
     shuffled = atlas.select(order)
     index = both_sides_index(s, atlas=shuffled)
-    together, _ = overlap_matrix(attach_sheets(shuffled, index), index, SETTINGS.quadrature)
+    together, _ = overlap_matrix(attach_sheets(shuffled, index), index, QUADRATURE)
     assert abs(together - C[order][:, order]).max() == 0.0
     for o in (0, 3):
         sel = np.flatnonzero(atlas.source_object == o)
         alone = atlas.select(sel)
         index = both_sides_index(s, atlas=alone)
-        block, _ = overlap_matrix(attach_sheets(alone, index), index, SETTINGS.quadrature)
+        block, _ = overlap_matrix(attach_sheets(alone, index), index, QUADRATURE)
         assert abs(block - C[sel][:, sel]).max() == 0.0
 
 
@@ -175,28 +176,51 @@ def test_stale_blocks_are_integrated_again(room):
     atlas, C = by_object(atlas, C)
     kept = blocks(s, atlas, C)
     n = len(atlas)
-    q = SETTINGS.quadrature
-    assert usable(s, atlas, kept, q)[0].all()
+    assert usable(s, atlas, kept)[0].all()
     # an occluder moved (it holds no patch, yet rays meet it): every block is stale
-    assert not usable(moved(s, 6, [0.0, 0.0, -0.01]), atlas, kept, q)[0].any()
+    assert not usable(moved(s, 6, [0.0, 0.0, -0.01]), atlas, kept)[0].any()
     # another rule
-    assert not usable(s, atlas, kept, q + 1)[0].any()
+    assert not usable(s, atlas, [replace(k, quadrature=k.quadrature + 1) for k in kept])[0].any()
     # one patch of the partition edited: its block only
     k = int(np.flatnonzero(atlas.source_object == 2)[0])
     radii = atlas.radii.copy()
     radii[k] *= 1.001
-    known, _ = usable(s, replace(atlas, radii=radii), kept, q)
+    known, _ = usable(s, replace(atlas, radii=radii), kept)
     np.testing.assert_array_equal(known, atlas.source_object != 2)
     # a kept value changed, or a block for other patches (another atlas object's place)
     values = kept[0].values.copy()
     values[0, 0] *= 1.5
-    known, _ = usable(s, atlas, [replace(kept[0], values=values), *kept[1:]], q)
+    known, _ = usable(s, atlas, [replace(kept[0], values=values), *kept[1:]])
     np.testing.assert_array_equal(known, atlas.source_object != 0)
-    known, _ = usable(s, atlas, [replace(kept[0], start=kept[1].start)], q)
+    known, _ = usable(s, atlas, [replace(kept[0], start=kept[1].start)])
     assert not known.any()
     # what prepare() does with a partly stale set: it integrates the rest, as it would all of C
     problem = prepare(s, replace(atlas, radii=radii), FAST, kept=kept)
     assert problem.kept == n - int(np.sum(atlas.source_object == 2))
     index = both_sides_index(s, atlas=atlas)
-    full, _ = overlap_matrix(attach_sheets(replace(atlas, radii=radii), index), index, q)
+    full, _ = overlap_matrix(attach_sheets(replace(atlas, radii=radii), index), index, QUADRATURE)
     assert abs(problem.C - full).max() <= 1e-6 * abs(full).max()
+
+
+def test_a_large_atlas_keeps_the_coarser_rule_it_was_integrated_with(monkeypatch):
+    """Generate integrates a large atlas's C with the coarse rule (AtlasSettings.rule_order; here
+    every atlas counts as large) and keeps that rule with the block; a solve uses the block, checked
+    with its own rule, even where its own choice for the atlas would be the fine one."""
+    s = scenes.cornell()
+    monkeypatch.setattr(settings_mod, "COARSE_FROM", 1)
+    atlas, C, quadrature = build_atlas_and_overlaps(s, AtlasSettings(patch_count=300))
+    assert quadrature == COARSE_QUADRATURE
+    index = both_sides_index(s, atlas=atlas)
+    coarse, _ = overlap_matrix(attach_sheets(atlas, index), index, COARSE_QUADRATURE)
+    fine, _ = overlap_matrix(attach_sheets(atlas, index), index, FINE_QUADRATURE)
+    assert abs(coarse - C).max() == 0.0
+    assert abs(fine - C).max() > 1e-6 * abs(C).max()  # the rules differ
+    kept = [keep(s, atlas, C, quadrature, SETTINGS.crease_angle)]
+    monkeypatch.setattr(settings_mod, "COARSE_FROM", 10**9)
+    problem = prepare(s, atlas, FAST, kept=kept)
+    assert problem.kept == len(atlas)
+    assert abs(problem.C - C).max() <= 2.0**-24 * abs(C).max()  # the block, back from float32
+    # without it, the solve integrates C with its own choice, the fine rule
+    alone = prepare(s, atlas, FAST)
+    assert alone.kept == 0
+    assert abs(alone.C - fine).max() <= 1e-12 * abs(fine).max()

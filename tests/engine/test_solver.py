@@ -21,7 +21,7 @@ def prepare(surfaces, **settings):
     st = AtlasSettings(**settings)
     atlas = build_atlas(surfaces, st)
     index = index_surfaces(surfaces, st)
-    C, support = overlap_matrix(atlas, index, st.quadrature)
+    C, support = overlap_matrix(atlas, index, st.rule_order(len(atlas)))
     T = gather_transport(replace(atlas, support_area=support), index)
     E = np.pi * patch_average(atlas, index, surfaces.emission)  # exitance from radiance
     return atlas, index, C, T, E
@@ -193,7 +193,7 @@ def test_a_ray_budget_keeps_rows_closed_and_the_furnace_exact(max_rays):
     st = AtlasSettings(patch_count=400)
     atlas = build_atlas(s, st)
     index = index_surfaces(s, st)
-    C, support = overlap_matrix(atlas, index, st.quadrature)
+    C, support = overlap_matrix(atlas, index, st.rule_order(len(atlas)))
     T = gather_transport(replace(atlas, support_area=support), index, max_rays=max_rays)
     assert T.rays <= max_rays and T.rays >= max_rays // 4
     np.testing.assert_allclose(np.asarray(T.geometric.sum(axis=1)).ravel(), support, rtol=1e-9)
@@ -224,7 +224,7 @@ def test_a_cancelled_transport_leaves_no_memory_behind(far):
     st = AtlasSettings(patch_count=300)
     atlas = build_atlas(s, st)
     index = index_surfaces(s, st)
-    _, support = overlap_matrix(atlas, index, st.quadrature)
+    _, support = overlap_matrix(atlas, index, st.rule_order(len(atlas)))
     atlas = replace(atlas, support_area=support)
     _ = atlas.grid, gather_transport(atlas, index, min_rays=1 << 14, far=far)  # caches built before measuring
 
