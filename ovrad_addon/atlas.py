@@ -384,10 +384,16 @@ def _sheet_spacing(index: SurfaceIndex, settings: AtlasSettings) -> np.ndarray:
 
 
 def _place_all(
-    index: SurfaceIndex, settings: AtlasSettings, spacing: np.ndarray, angles: dict[int, float] | None = None
+    index: SurfaceIndex,
+    settings: AtlasSettings,
+    spacing: np.ndarray,
+    angles: dict[int, float] | None = None,
+    count_only: bool = False,
 ) -> tuple[list[Placed], int]:
     """Place patches sheet by sheet; each Placed's triangle holds global triangle indices. angles:
-    planar sheets' grid angles (placement.grid_angle) by sheet, kept across placements (filled here)."""
+    planar sheets' grid angles (placement.grid_angle) by sheet, kept across placements (filled here).
+    count_only: the count is all that is needed (a placement that only sets the next spacing): the
+    planar and curved sheets are counted, not placed (the list then lacks them)."""
     angles = {} if angles is None else angles
     s = index.surfaces
     ch = index.charts
@@ -443,10 +449,19 @@ def _place_all(
             nrm = side * (ch.normals[tri] * ch.areas[tri, None]).sum(axis=0)
             if k not in angles:
                 angles[k] = grid_angle(corners, nrm)
-            p = place_planar(corners, nrm, spacing[k], settings.overlap, settings.shapes, ext, angles[k])
-            p.thickness = p.thickness + 2.0 * index.deviation[c]
+            p = place_planar(
+                corners, nrm, spacing[k], settings.overlap, settings.shapes, ext, angles[k], count_only
+            )
         else:
-            p = place_curved(corners, side * ch.normals[tri], spacing[k], settings.overlap, ext, seed=int(k))
+            nrm = side * ch.normals[tri]
+            p = place_curved(corners, nrm, spacing[k], settings.overlap, ext, int(k), count_only)
+        if count_only:
+            total += p
+            if total > settings.max_patches:
+                break
+            continue
+        if index.flat[c]:
+            p.thickness = p.thickness + 2.0 * index.deviation[c]
         p.triangle = tri[p.triangle]
         out[k] = p
         total += len(p.radii)
@@ -521,8 +536,11 @@ def build_atlas_and_overlaps(
         raise _too_many(estimate, settings)
     report_stage(progress, 0.1, "placing patches")
     angles: dict[int, float] = {}  # each planar sheet's grid turn, the same at every spacing
-    placed, total = _place_all(index, settings, spacing, angles)
-    if settings.patch_size is None and total <= settings.max_patches:
+    # with a target count, this first placement only sets the next spacing: its patches are never
+    # kept (the loop below keeps the closest of the later ones), so it only counts them
+    by_count = settings.patch_size is None
+    placed, total = _place_all(index, settings, spacing, angles, count_only=by_count)
+    if by_count and total <= settings.max_patches:
         # Boundary cells add to the count; one correction (count ~ 1 / spacing^2) brings it near
         # the target. Where it does not (many small charts, whose border patches make the count
         # go as 1 / spacing: the production room got 33 228 patches for 25 000), up to two more,

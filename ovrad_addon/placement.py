@@ -105,9 +105,10 @@ def place_planar(
     shapes: str,
     extent: float,
     angle: float | None = None,
-) -> Placed:
+    count_only: bool = False,
+) -> Placed | int:
     """Grid patches on one planar sheet given its triangles (T, 3, 3) and the sheet's unit normal;
-    angle: its grid_angle() when known."""
+    angle: its grid_angle() when known. count_only: how many, without placing them."""
     n = normal / np.linalg.norm(normal)
     e1, e2 = tangent_frame(n)
     origin = corners.reshape(-1, 3).mean(axis=0)
@@ -134,6 +135,8 @@ def place_planar(
     clo = lo + np.stack([ixr, iy], 1) * h
     hit = _sat_overlap(p2[owner], clo, clo + h, eps)
     cells, first = np.unique(ixr[hit] * ncell[1] + iy[hit], return_index=True)
+    if count_only:
+        return len(cells)
     cell_tri = owner[hit][first]  # a triangle overlapping each cell (its patch's sheet is under it)
     cx, cy = cells // ncell[1], cells % ncell[1]
     # Boundary edges: edges used once among the sheet's triangles (welded by 2-D position).
@@ -256,8 +259,10 @@ def place_curved(
     overlap: float,
     extent: float,
     seed: int,
-) -> Placed:
-    """Disk patches on a curved sheet: one per occupied voxel of side `spacing`.
+    count_only: bool = False,
+) -> Placed | int:
+    """Disk patches on a curved sheet: one per occupied voxel of side `spacing` (count_only: how
+    many, without placing them).
 
     tri_normals (T, 3) are already oriented for the sheet's side.
     """
@@ -279,6 +284,8 @@ def place_curved(
         if area < SLIVER_PIECE * disk:
             vox = _merge_slivers(pts, vox, _sample_areas(corners, gap), SLIVER_AREA * spacing**2)
     k = int(vox.max()) + 1
+    if count_only:
+        return k
     cnt = np.bincount(vox, minlength=k).astype(np.float64)
     mean = np.stack([np.bincount(vox, weights=pts[:, j], minlength=k) for j in range(3)], 1) / cnt[:, None]
     nsum = np.stack([np.bincount(vox, weights=nrm[:, j], minlength=k) for j in range(3)], 1)

@@ -217,3 +217,24 @@ def test_voxel_slivers_join_a_neighbour_so_no_two_patches_nearly_coincide(monkey
     without, more = nearly_coincident()
     assert with_rule * 4 < without
     assert patches < more  # the slivers' patches are gone, not moved
+
+
+def test_counting_a_placement_gives_the_count_placing_makes():
+    """Generate's first placement only counts (count_only): on every sheet of a room of bent leaves
+    (curved pieces, slivers merged) and of the Cornell box (planar, boundary squares), at three
+    spacings, the count is the number of patches the full placement makes."""
+    from ovrad_addon.atlas import _place_all, _sheet_spacing
+
+    cases = ((bent_pieces_in_a_room(), AtlasSettings(patch_size=0.09)), (scenes.cornell(), AtlasSettings()))
+    for s, settings in cases:
+        index = index_surfaces(s, settings)
+        base = _sheet_spacing(index, settings)
+        angles = {}
+        for f in (0.6, 1.0, 1.7):
+            placed, total = _place_all(index, settings, f * base, angles)
+            counted = _place_all(index, settings, f * base, angles, count_only=True)[1]
+            assert total == sum(len(p.radii) for p in placed) == counted
+        # the kept grid angles are the ones the sheets would get afresh
+        fresh = {}
+        _place_all(index, settings, base, fresh)
+        assert fresh == angles and len(angles) > 0
