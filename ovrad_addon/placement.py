@@ -226,11 +226,13 @@ SLIVER_AREA = 0.35
 SLIVER_PIECE = 4.0  # ... on pieces under this many patch disks; larger sheets keep every voxel
 
 
-def _sample_areas(corners: np.ndarray, gap: float) -> np.ndarray:
-    """The area each of sample_triangles(corners, gap)'s points stands for (its corners: 0)."""
-    a = triangle_geometry(corners)[0]
-    count = np.maximum(np.ceil(a / gap**2), 1).astype(np.int64)
-    return np.concatenate([np.repeat(a / count, count), np.zeros(3 * len(corners))])
+def _sample_areas(tri: np.ndarray, areas: np.ndarray) -> np.ndarray:
+    """The area each of sample_triangles' points (their triangles tri (s,)) stands for, given the
+    triangles' areas (T,): its triangle's area over the triangle's random samples; the 3T corners
+    that close the list stand for none."""
+    random = tri[: len(tri) - 3 * len(areas)]
+    count = np.bincount(random, minlength=len(areas))
+    return np.concatenate([areas[random] / count[random], np.zeros(3 * len(areas))])
 
 
 def _merge_slivers(pts: np.ndarray, vox: np.ndarray, weight: np.ndarray, least: float) -> np.ndarray:
@@ -269,7 +271,8 @@ def place_curved(
     gap = spacing / 6.0
     pts, tri = sample_triangles(corners, gap, seed)
     nrm = tri_normals[tri]
-    area = triangle_geometry(corners)[0].sum()
+    areas = triangle_geometry(corners)[0]
+    area = areas.sum()
     disk = np.pi * (overlap * spacing / np.sqrt(2.0)) ** 2
     if area < ONE_PATCH_AREA * disk:
         # A piece smaller than a patch's disk gets one patch: the voxels it crosses gave a bent
@@ -282,7 +285,7 @@ def place_curved(
         _, vox = np.unique(key, axis=0, return_inverse=True)
         vox = vox.reshape(-1)
         if area < SLIVER_PIECE * disk:
-            vox = _merge_slivers(pts, vox, _sample_areas(corners, gap), SLIVER_AREA * spacing**2)
+            vox = _merge_slivers(pts, vox, _sample_areas(tri, areas), SLIVER_AREA * spacing**2)
     k = int(vox.max()) + 1
     if count_only:
         return k
