@@ -54,7 +54,7 @@ def one(count: int, beta: str, scene: str) -> dict:
     t0 = time.perf_counter()
     st = AtlasSettings(patch_count=count, beta=beta, max_patches=4_000_000)
     with peaks.stage("atlas"):
-        atlas, C, q = build_atlas_and_overlaps(s, st)
+        atlas, C, q, _ = build_atlas_and_overlaps(s, st)
     t_atlas = time.perf_counter() - t0
     settings = SolveSettings()
     with peaks.stage("prepare"):

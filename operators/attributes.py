@@ -181,6 +181,8 @@ def _atlas_mesh(name: str, atlas: Atlas, kept: KeptOverlaps | None = None) -> bp
         write_attribute(mesh, names.OVERLAP_C, kept.values, "FLOAT2", "EDGE")
         mesh[names.PROP_OVERLAP_KEY] = kept.key
         mesh[names.PROP_OVERLAP_QUADRATURE] = int(kept.quadrature)
+        if kept.contacts is not None:
+            write_point_attribute(mesh, names.CONTACTS, kept.contacts, "INT")
     mesh.update()
     return mesh
 
@@ -203,7 +205,12 @@ def read_kept(obj, start: int) -> KeptOverlaps | None:
     if not isinstance(quadrature, int) or not 2 <= quadrature <= 64:
         return None
     values = read_attribute(mesh, names.OVERLAP_C)
-    return KeptOverlaps(start, len(mesh.vertices), key, edges.reshape(-1, 2), values, diagonal, quadrature)
+    flags = mesh.attributes.get(names.CONTACTS)
+    contacts = None  # kept before the contacts were: a solve finds them again
+    if flags is not None and flags.domain == "POINT" and flags.data_type == "INT":
+        contacts = read_point_attribute(mesh, names.CONTACTS)
+    count = len(mesh.vertices)
+    return KeptOverlaps(start, count, key, edges.reshape(-1, 2), values, diagonal, quadrature, contacts)
 
 
 def write_atlas(scene, source: str, atlas: Atlas, kept: KeptOverlaps | None = None) -> bpy.types.Object:

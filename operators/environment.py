@@ -105,13 +105,13 @@ def plan(
             "solve: press Solve again first"
         )
     try:
-        atlas, C, quadrature = build_atlas_and_overlaps(replace(surfaces, receiver=env), settings)
+        atlas, C, quadrature, flags = build_atlas_and_overlaps(replace(surfaces, receiver=env), settings)
     except OvradError as e:
         warnings.append(f"the meshes without an atlas only cast shadows in this solve: {e}")
         return Environment(None, key)
     atlas = atlas.as_stored()
     # its C, integrated just now: this solve uses it, and the file keeps it for the next ones
-    kept = keep(surfaces, atlas, C, quadrature, settings.crease_angle, start=len(receivers))
+    kept = keep(surfaces, atlas, C, quadrature, settings.crease_angle, len(receivers), flags)
     return Environment(atlas, key, new=True, name=names.ENVIRONMENT, kept=kept)
 
 

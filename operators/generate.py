@@ -68,7 +68,8 @@ class OVRAD_OT_generate_atlas(bpy.types.Operator):
             meshes = scene_io.read_scene(depsgraph, selected, model.others(selected), model)
             settings = properties.atlas_settings(scene.ovrad, meshes.objects)
             with _progress(context) as progress:
-                atlas, C, quadrature = build_atlas_and_overlaps(meshes.surfaces, settings, progress=progress)
+                built = build_atlas_and_overlaps(meshes.surfaces, settings, progress=progress)
+            atlas, C, quadrature, flags = built
         except OvradError as e:
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
@@ -79,7 +80,7 @@ class OVRAD_OT_generate_atlas(bpy.types.Operator):
             # its block of C, kept on the atlas object so a solve need not integrate it again
             kept = None
             if len(sel):
-                kept = keep(world, part, C[sel][:, sel], quadrature, settings.crease_angle)
+                kept = keep(world, part, C[sel][:, sel], quadrature, settings.crease_angle, 0, flags[sel])
             parts.append((obj.name, part, kept))
         for w in meshes.warnings:
             self.report({"WARNING"}, w)

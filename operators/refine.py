@@ -59,12 +59,14 @@ def refine_scene(context) -> tuple[int, int, int]:
     finer = finer.as_stored()
     quadrature = settings.rule_order(len(finer))  # as Generate would choose for the finer atlas
     with _progress(context) as progress:
-        finer, C = integrate(finer, index, quadrature, progress)
+        finer, C, flags = integrate(finer, index, quadrature, progress)
     world = object_keys(inputs.surfaces)
     for i, (base, src) in enumerate(zip(bases, inputs.sources, strict=True)):
         sel = np.flatnonzero(finer.source_object == i)
         part = finer.select(sel)
-        kept = keep(world, part, C[sel][:, sel], quadrature, crease) if len(sel) else None
+        kept = None
+        if len(sel):
+            kept = keep(world, part, C[sel][:, sel], quadrature, crease, contacts=flags[sel])
         new = attributes.write_atlas(scene, src.name, part, kept)
         new[BASE_RADIUS] = base
         display.ensure_modifier(new, part.beta)

@@ -76,7 +76,7 @@ def load_solution(context) -> Solution:
             raise OvradError(f"'{name}' has no solved light: press Solve first")
         parts.append(attributes.read_point_attribute(mesh, names.RADIOSITY)[:count, :3])
     radiosity = np.pi * np.concatenate(parts).astype(np.float64)
-    problem = cached_problem(inputs) or locate(inputs.surfaces, inputs.atlas)
+    problem = cached_problem(inputs) or locate(inputs.surfaces, inputs.atlas, kept=inputs.kept)
     firsts = [inputs.first_triangle(i) for i in range(len(inputs.sources))]
     first_shot, light = None, None
     if context.scene.ovrad.bake_direct:

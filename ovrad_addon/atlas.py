@@ -13,7 +13,7 @@ from scipy.spatial import cKDTree
 
 from . import clutter as clutter_mod
 from . import names
-from .contact import carry_over, split_at_contacts
+from .contact import carry_over, contact_flags, contacts, split_at_contacts
 from .errors import OvradError
 from .placement import Placed, grid_angle, place_curved, place_planar, place_planar_small
 from .progress import StageCallback, report_stage
@@ -509,12 +509,14 @@ def build_atlas(
 
 
 class Built(NamedTuple):
-    """What Generate makes: the atlas (as a file keeps it), its C (n x n, C[h, i] = c_ih) and the
-    quadrature C was integrated with (AtlasSettings.rule_order of the patches placed)."""
+    """What Generate makes: the atlas (as a file keeps it), its C (n x n, C[h, i] = c_ih), the
+    quadrature C was integrated with (AtlasSettings.rule_order of the patches placed) and the
+    patches' contact flags it was integrated with (n,) (contact.contact_flags)."""
 
     atlas: Atlas
     C: csr_matrix
     quadrature: int
+    contacts: np.ndarray
 
 
 def build_atlas_and_overlaps(
@@ -587,9 +589,12 @@ def build_atlas_and_overlaps(
         side=index.sheet_side[sheet].astype(np.int8),
     )
     # Patches cut by contact lines (a partition standing on the floor): one per side (contact.py).
-    atlas = split_at_contacts(atlas, index).as_stored()
+    # split as stored: the split atlas's contacts, found while splitting (cached on the index), are
+    # then those of the atlas C is integrated on
+    atlas = split_at_contacts(atlas.as_stored(), index).as_stored()
     quadrature = settings.rule_order(len(atlas))
-    return Built(*integrate(atlas, index, quadrature, progress, 0.2), quadrature)
+    atlas, C, flags = integrate(atlas, index, quadrature, progress, 0.2)
+    return Built(atlas, C, quadrature, flags)
 
 
 def integrate(
@@ -598,9 +603,10 @@ def integrate(
     quadrature: int,
     progress: StageCallback | None = None,
     start: float = 0.0,
-) -> tuple[Atlas, csr_matrix]:
+) -> tuple[Atlas, csr_matrix, np.ndarray]:
     """An atlas's overlap matrix C and areas (support, effective c_kk, overlap counts), its
-    patches without support dropped: what Generate stores (build_atlas, and refine.py's children).
+    patches without support dropped, and the contact flags C was integrated with (n,)
+    (contact.contact_flags): what Generate stores (build_atlas, and refine.py's children).
     progress runs from `start` to 1."""
     from .overlap import neighbour_pairs, overlap_matrix
 
@@ -637,5 +643,6 @@ def integrate(
     nz = (C + C.T).tocsr()
     nz.data[:] = 1
     counts = np.diff(nz.indptr) - (C.diagonal() > 0)
+    flags = contact_flags(contacts(atlas, index))  # found while integrating: cached on the index
     atlas = replace(atlas, support_area=support, effective_area=C.diagonal().copy(), overlap_count=counts)
-    return atlas, C
+    return atlas, C, flags

@@ -30,6 +30,7 @@ import numpy as np
 from scipy.sparse import coo_matrix, csc_matrix, diags, vstack
 
 from .contact import COVER, geometry_over
+from .geometry import unique_rows
 from .lookup import PatchGrid
 
 FIRST_LEVEL = 2  # 4 lookup cells: about two patch radii (lookup.CELLS_PER_RADIUS)
@@ -226,7 +227,7 @@ def pooled_fraction(atlas, escaped: np.ndarray, cast: np.ndarray, want: int) -> 
     bins = normal_bin(np.asarray(atlas.normals, np.float64)[use])
     while True:
         ijk = np.floor((centers - lo) / h).astype(np.int64)
-        uniq, col = np.unique(np.column_stack([ijk, bins]), axis=0, return_inverse=True)
+        uniq, col = unique_rows(np.column_stack([ijk, bins]), return_inverse=True)
         col = col.ravel()
         rays = np.bincount(col, weights=cast[use], minlength=len(uniq))
         out = np.bincount(col, weights=escaped[use], minlength=len(uniq))

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .geometry import subtriangle_centroids, tangent_frame
+from .geometry import subtriangle_centroids, tangent_frame, unique_rows
 from .names import SHAPE_BALL
 
 CLUTTER_AREA = 0.1  # a chart with less area than this times its spacing squared is clutter
@@ -209,7 +209,7 @@ def place_balls(index, spacing: np.ndarray, overlap: float) -> dict[int, dict[st
     cell = spacing[smp.sheet]
     ijk = np.floor(smp.points / cell[:, None]).astype(np.int64)
     key = np.column_stack([smp.sheet, ijk])
-    uniq, group = np.unique(key, axis=0, return_inverse=True)
+    uniq, group = unique_rows(key, return_inverse=True)
     group = group.reshape(-1)
     k = len(uniq)
     sheet = uniq[:, 0]

@@ -130,15 +130,48 @@ def contacts(atlas, index) -> Contacts:
         anchor[ids[got]] = points[near[got]]
         anchor[ids] = np.where(np.isfinite(anchor[ids]), anchor[ids], atlas.centers[ids])
         under[ids] = covered(atlas, index, ids, anchor[ids], lift)
-        g = ids[owner]
-        blocked = _blocked(index, atlas.normals[g], lift[g], anchor[g], points)
-        blocked |= covered(atlas, index, g, points, lift) != under[g]
-        cut[ids] = np.bincount(owner, weights=blocked, minlength=len(ids)) > 0
+        points_under = covered(atlas, index, ids[owner], points, lift)
+        seen = _sees(atlas, index, ids, owner, anchor[ids], under[ids], points, points_under, lift)
+        cut[ids] = np.bincount(owner, weights=~seen, minlength=len(ids)) > 0
     anchor = np.where(np.isfinite(anchor), anchor, atlas.centers)
     out = Contacts(anchor, lift, cut, whole, under)
     index.cache[key] = out
     index.cache[("contacts of", id(atlas))] = (atlas, out)
     return out
+
+
+# Bits of contact_flags(): what a file keeps of a patch's contacts beside its kept C (kept_overlaps.py)
+CUT, WHOLE, COVERED = 1, 2, 4
+
+
+def contact_flags(c: Contacts) -> np.ndarray:
+    """(n,) int32 per patch: CUT | WHOLE | COVERED, the bits of its cut, whole and covered flags."""
+    return (c.cut * CUT | c.whole * WHOLE | c.covered * COVERED).astype(np.int32)
+
+
+def seed_contacts(atlas, index, flags: np.ndarray, known: np.ndarray) -> bool:
+    """Cache for `atlas` on `index` the contacts that `flags` (n,) (contact_flags) give for the patches
+    `known` (n,) bool, finding the other patches' with contacts() on them alone (a patch's contacts are
+    its own); the anchors are the atlas's. A solve whose kept C fits (kept_overlaps.fitting) takes the
+    contacts that C was integrated with instead of finding them again (100 k patches: about 5 s).
+    Returns False, caching nothing, where the atlas has no anchors or a known one is not finite."""
+    if atlas.anchor is None or not known.any():
+        return False
+    anchor = np.asarray(atlas.anchor, np.float64)
+    if not np.all(np.isfinite(anchor[known])):
+        return False
+    flags = np.asarray(flags, np.int64)
+    cut, whole, covered = ((flags & bit) != 0 for bit in (CUT, WHOLE, COVERED))
+    anchor = anchor.copy()
+    rest = np.flatnonzero(~known)
+    if len(rest):
+        found = contacts(atlas.select(rest), index)
+        anchor[rest], cut[rest] = found.anchor, found.cut
+        whole[rest], covered[rest] = found.whole, found.covered
+    out = Contacts(anchor, _lift(atlas, index), cut, whole, covered)
+    index.cache[_key(atlas)] = out
+    index.cache[("contacts of", id(atlas))] = (atlas, out)
+    return True
 
 
 def carry_over(atlas, index, keep: np.ndarray, selected) -> None:
@@ -157,18 +190,25 @@ def split_at_contacts(atlas, index, pieces: int = MAX_PIECES, least: float = LEA
     holding at least `least` of the patch's area becomes a patch of its own (same disk or square,
     that anchor, the triangle under the anchor), kept next to the others; a patch with no part
     that large keeps its largest. Every patch gets its anchor stored (Atlas.anchor), so Solve
-    sees the same supports.
+    sees the same supports. Anchors are rounded to float32 as a file keeps them, and the split
+    atlas's contacts (what contacts() would find for it: the same rule points, seen from the same
+    anchors) are cached on the index, so integrating its C does not find them again.
     """
     n = len(atlas)
     ids = planar_patches(atlas, index)
     other = np.setdiff1d(np.arange(n), ids)
+    none = np.zeros(len(other), bool)
     rows, anchors, tris = [other], [atlas.centers[other]], [np.full(len(other), -1, np.int64)]
+    cuts, wholes, covers = [none], [none], [none]  # contacts() leaves patches off planar sheets alone
     lift = _lift(atlas, index)
     for start in range(0, len(ids), CHUNK):  # a patch's parts are its own: in chunks
-        for r, a, t in _parts(atlas, index, ids[start : start + CHUNK], lift, pieces, least):
+        for r, a, t, c, w, u in _parts(atlas, index, ids[start : start + CHUNK], lift, pieces, least):
             rows.append(r)
             anchors.append(a)
             tris.append(t)
+            cuts.append(c)
+            wholes.append(w)
+            covers.append(u)
     row = np.concatenate(rows)
     order = np.argsort(row, kind="stable")
     out = atlas.select(row[order])
@@ -178,28 +218,47 @@ def split_at_contacts(atlas, index, pieces: int = MAX_PIECES, least: float = LEA
         stored = stored.copy()
         has = tri >= 0
         stored[has] = index.surfaces.local_triangle[tri[has]]
-    return replace(out, anchor=np.concatenate(anchors)[order], triangle=stored)
+    out = replace(out, anchor=np.concatenate(anchors)[order], triangle=stored)
+    flags = (np.concatenate(x)[order] for x in (cuts, wholes, covers))
+    index.cache[_key(out)] = Contacts(out.anchor, _lift(out, index), *flags)
+    return out
+
+
+def _sees(atlas, index, ids, owner, anchor, over, points, under, lift) -> np.ndarray:
+    """(m,) bool: the rule points (m, 3) of patches ids[owner] (under (m,): covered) are seen from
+    their patch's anchor (anchor (len(ids), 3), over (len(ids),): covered): contacts() and the split
+    (_parts) test them alike, so the split's contacts are those contacts() finds."""
+    g = ids[owner]
+    seen = ~_blocked(index, atlas.normals[g], lift[g], anchor[owner], points)
+    return seen & (over[owner] == under)
 
 
 def _parts(atlas, index, ids, lift, pieces: int, least: float):
-    """split_at_contacts for planar patches ids: (patches, anchors, triangles) per kept part, in
-    the order the atlas keeps them (first parts, second parts, ..., patches left whole)."""
+    """split_at_contacts for planar patches ids: (patches, anchors, triangles, cut, whole, covered)
+    per kept part, in the order the atlas keeps them (first parts, second parts, ..., patches left
+    whole); cut, whole and covered as contacts() finds them for that patch and anchor."""
     out = []
-    owner, points, weights, tri, _ = _rule(atlas, index, ids)
+    owner, points, weights, tri, whole = _rule(atlas, index, ids)
     part = np.full(len(owner), -1, np.int64)
     under = covered(atlas, index, ids[owner], points, lift)
     heads = []
     for k in range(pieces):
         a = _nearest(atlas, ids, owner, points, part < 0)
-        if not np.any(a >= 0):
+        has = a >= 0
+        if not np.any(has):
             break
-        heads.append(a)
-        test = np.flatnonzero((part < 0) & (a[owner] >= 0))
-        g = ids[owner[test]]
-        seen = ~_blocked(index, atlas.normals[g], lift[g], points[a[owner[test]]], points[test])
-        seen &= under[a[owner[test]]] == under[test]
-        part[test[seen]] = k
-        part[a[a >= 0]] = k
+        # the anchor as a file keeps it (float32), so contacts() of the stored atlas sees from it
+        anchor = np.zeros((len(ids), 3))
+        anchor[has] = points[a[has]].astype(np.float32)
+        over = np.zeros(len(ids), bool)
+        over[has] = covered(atlas, index, ids[has], anchor[has], lift)
+        test = np.flatnonzero((part < 0) & has[owner])
+        tested, seen = np.zeros(len(owner), bool), np.zeros(len(owner), bool)
+        tested[test] = True
+        seen[test] = _sees(atlas, index, ids, owner[test], anchor, over, points[test], under[test], lift)
+        part[test[seen[test]]] = k
+        part[a[has]] = k
+        heads.append((a, anchor, over, tested, seen))
     total = np.bincount(owner, weights=weights, minlength=len(ids))
     held = [
         np.bincount(owner[part == k], weights=weights[part == k], minlength=len(ids))
@@ -207,11 +266,27 @@ def _parts(atlas, index, ids, lift, pieces: int, least: float):
     ]
     share = np.reshape(held, (len(heads), len(ids))) / np.maximum(total, 1e-300)
     best = np.argmax(share, axis=0) if len(heads) else np.zeros(len(ids), np.int64)
-    for k, a in enumerate(heads):
+    for k, (a, anchor, over, tested, seen) in enumerate(heads):
         take = (a >= 0) & ((share[k] >= least) | (best == k))
-        out.append((ids[take], points[a[take]], tri[a[take]]))
-    none = total <= 0  # no rule point on the sheet: the patch stays as it is
-    out.append((ids[none], atlas.centers[ids[none]], np.full(int(none.sum()), -1, np.int64)))
+        # a kept part is cut where any rule point of its patch is hidden from its anchor: the points
+        # an earlier part took were not tested from this anchor yet
+        rest = np.flatnonzero(take[owner] & ~tested)
+        seen[rest] = _sees(atlas, index, ids, owner[rest], anchor, over, points[rest], under[rest], lift)
+        cut = np.bincount(owner, weights=take[owner] & ~seen, minlength=len(ids)) > 0
+        out.append((ids[take], anchor[take], tri[a[take]], cut[take], whole[take], over[take]))
+    none = total <= 0  # no rule point on the sheet: the patch stays as it is, seen from its centre
+    centers = atlas.centers[ids[none]]
+    under_none = covered(atlas, index, ids[none], centers, lift)
+    out.append(
+        (
+            ids[none],
+            centers,
+            np.full(len(centers), -1, np.int64),
+            np.zeros(len(centers), bool),
+            whole[none],
+            under_none,
+        )
+    )
     return out
 
 

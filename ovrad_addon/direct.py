@@ -13,6 +13,7 @@ from both sides of a face (as in Cycles), so both sides count.
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -146,6 +147,7 @@ def emitter_samples(
 
 NEAR_EMITTER = 2.0  # a point closer to an emitting triangle's samples than this x their spacing
 # gets that triangle's light from its exact form factor (polygon_irradiance), not from the samples
+NEAR_EXACT = 10.0  # ... or, picked samples (_near_picked), from its centroid when this x its size away
 
 
 def polygon_irradiance(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray) -> np.ndarray:
@@ -195,13 +197,12 @@ def emitter_irradiance(
     pts = np.asarray(points, np.float64).reshape(-1, 3)
     nrm = np.asarray(normals, np.float64).reshape(-1, 3)
     H = np.zeros((len(pts), 3))
-    src = emitter_samples(surfaces, emitters, samples, scale)
+    src, near = _emitter_rule(surfaces, emitters, samples, scale)
     k = len(src.area)
     if len(pts) == 0 or k == 0:
         return H, 0
     eps = 1e-6 * surfaces.extent
     cast = 0
-    near = _PickedTriangles(src) if src.pick is not None else None
     step = max(1, _CHUNK_RAYS // k)
     for r0 in range(0, len(pts), step):
         rs = np.arange(r0, min(len(pts), r0 + step))
@@ -258,6 +259,28 @@ def _near_emitters(H, rs, P, N, src: EmitterSamples, d, g, pair, lit) -> None:
 NEAR_PAIRS = 1 << 20  # (point, near triangle) pairs _near_picked holds at once
 
 
+_RULES: dict = {}  # (id(surfaces), id(emitters), samples, scale) -> (weakrefs of both, rule, picked)
+
+
+def _emitter_rule(surfaces: Surfaces, emitters: np.ndarray, samples: int, scale: float):
+    """emitter_samples() and its _PickedTriangles (None unless samples are picked), made once for the
+    same surfaces and emitters objects: a final gather asks for them at every chunk of its near hits
+    (408 times in the production room's vertex bake). Weak references: nothing is kept alive."""
+    key = (id(surfaces), id(emitters), int(samples), float(scale))
+    hit = _RULES.get(key)
+    if hit is not None and hit[0]() is surfaces and hit[1]() is emitters:
+        return hit[2], hit[3]
+    src = emitter_samples(surfaces, emitters, samples, scale)
+    near = _PickedTriangles(src) if src.pick is not None and len(src.area) else None
+    for old in [k for k, v in _RULES.items() if v[0]() is None or v[1]() is None]:
+        _RULES.pop(old, None)
+    try:
+        _RULES[key] = (weakref.ref(surfaces), weakref.ref(emitters), src, near)
+    except TypeError:  # an object without weak references: not cached
+        pass
+    return src, near
+
+
 class _PickedTriangles:
     """The emitting triangles of picked samples, for _near_picked: centroids, their KD-tree, each
     triangle's reach from its centroid (size) and unit normal; built once per emitter_irradiance."""
@@ -268,7 +291,7 @@ class _PickedTriangles:
         c = src.corners
         self.centroid = c.mean(axis=1)
         self.size = np.linalg.norm(c - self.centroid[:, None], axis=2).max(axis=1)
-        self.normal = triangle_geometry(c)[1]
+        self.area, self.normal = triangle_geometry(c)
         self.tree = cKDTree(self.centroid)
         self.reach = NEAR_EMITTER * float(src.spacing.max()) + float(self.size.max())
 
@@ -302,10 +325,25 @@ def _near_picked(H, rs, P, N, src: EmitterSamples, near_tris: _PickedTriangles, 
         i, e, v, dist = i[near], e[near], v[near], dist[near]
         if len(i) == 0:
             continue
-        exact = polygon_irradiance(P[i], N[i], c[e])
         omega = v / np.maximum(dist, 1e-300)[:, None]
         normal = near_tris.normal[e]
         facing = np.einsum("ij,ij->i", omega, normal)
+        # exact (Lambert's contour) where the triangle is near or crosses the point's horizon; its
+        # centroid rule farther than NEAR_EXACT x its size (against the contour on 20 000 random
+        # such pairs: 0.12 % on average, 1 % at the 99th percentile, up to 4 % only seen edge-on,
+        # where its light is faint). A panel split into 7 200 triangles had every point under it
+        # run the contour for hundreds of them.
+        above = np.einsum("kcj,kj->kc", c[e] - P[i][:, None], N[i]).min(axis=1) > 0
+        point = above & (dist > NEAR_EXACT * size[e])
+        exact = np.empty(len(i))
+        contour = np.flatnonzero(~point)
+        exact[contour] = polygon_irradiance(P[i[contour]], N[i[contour]], c[e[contour]])
+        exact[point] = (
+            near_tris.area[e[point]]
+            * np.einsum("ij,ij->i", omega[point], N[i[point]])
+            * np.abs(facing[point])
+            / dist[point] ** 2
+        )
         ask = (np.einsum("ij,ij->i", omega, N[i]) > 0) & (exact > 0)
         seen = np.ones(len(i), bool)  # a centroid under the point's horizon: the clipped part is seen
         if ask.any():

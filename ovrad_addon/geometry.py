@@ -26,3 +26,38 @@ def subtriangle_centroids(k: int) -> np.ndarray:
     uv_up = np.column_stack([(i[up] + 1 / 3) / k, (j[up] + 1 / 3) / k])
     uv_down = np.column_stack([(i[down] + 2 / 3) / k, (j[down] + 2 / 3) / k])
     return np.vstack([uv_up, uv_down])
+
+
+def unique_rows(rows: np.ndarray, return_index=False, return_inverse=False, return_counts=False):
+    """np.unique(rows, axis=0, ...) for integer rows (m, k), with the same results in the same
+    (lexicographic) order: each row folded into one int64 key, column 0 the most significant, where
+    the columns' ranges allow (numpy's unique over rows sorts a structured view, ~15x slower on a
+    million voxel keys); np.unique over rows otherwise. The inverse is flat."""
+    flags = dict(return_index=return_index, return_inverse=return_inverse, return_counts=return_counts)
+    a = np.asarray(rows)
+    if a.ndim != 2 or a.shape[1] == 0 or len(a) == 0 or not np.issubdtype(a.dtype, np.integer):
+        return _flat_inverse(np.unique(a, axis=0, **flags), return_index, return_inverse)
+    a = a.astype(np.int64, copy=False)
+    lo = a.min(axis=0)
+    span = a.max(axis=0) - lo + 1
+    if float(np.sum(np.log2(span.astype(np.float64)))) >= 62.0:  # the key would overflow int64
+        return _flat_inverse(np.unique(a, axis=0, **flags), return_index, return_inverse)
+    key = a[:, 0] - lo[0]
+    for j in range(1, a.shape[1]):
+        key = key * span[j] + (a[:, j] - lo[j])
+    out = np.unique(key, return_index=True, return_inverse=return_inverse, return_counts=return_counts)
+    first = out[1]
+    result = [a[first]]
+    if return_index:
+        result.append(first)
+    result.extend(out[2:])
+    return tuple(result) if len(result) > 1 else result[0]
+
+
+def _flat_inverse(out, return_index: bool, return_inverse: bool):
+    if not return_inverse:
+        return out
+    out = list(out)
+    k = 1 + int(return_index)
+    out[k] = np.asarray(out[k]).ravel()
+    return tuple(out)

@@ -18,6 +18,12 @@ the rule (quadrature, crease angle, RULE_VERSION) and the kept values themselves
 The quadrature is the block's own (KeptOverlaps.quadrature, kept beside the key; Generate chooses
 it by the atlas's size, AtlasSettings.rule_order): the key is checked with the rule the block was
 integrated with.
+
+A block also keeps its patches' contact flags (contact.contact_flags: cut, whole, covered; the
+anchors are the atlas's own), under its key: a solve whose block fits takes the contacts C was
+integrated with instead of finding them again (100 k patches: about 5 s), and so does a bake of the
+reopened file. Blocks kept before the flags were have keys made without them and still fit; their
+patches' contacts are found again.
 """
 
 from __future__ import annotations
@@ -34,7 +40,8 @@ from .surfaces import Surfaces
 
 # Raise when overlap.py integrates C differently (its rule, membership, contacts, clutter samples):
 # a C kept by an earlier version is then integrated again instead of used.
-RULE_VERSION = 2  # 2: rows of repeated neighbourhoods copied (overlap.repeated_rows)
+# 2: rows of repeated neighbourhoods copied (overlap.repeated_rows); 3: border crossings (support_cuts)
+RULE_VERSION = 3
 
 
 @dataclass(frozen=True)
@@ -42,7 +49,9 @@ class KeptOverlaps:
     """The block of C of `count` patches of an atlas, from patch `start` on (one atlas object), as a
     file keeps it: edges (m, 2) int32 patch pairs i < j within the block, values (m, 2) float32
     (C[i, j], C[j, i]), diagonal (count,) float32 c_kk, key, the overlap_key() it was stored with,
-    and quadrature, the rule it was integrated with (blocks kept before it was stored: 12)."""
+    and quadrature, the rule it was integrated with (blocks kept before it was stored: 12); contacts
+    (count,) int32, the patches' contact flags C was integrated with (contact.contact_flags; None:
+    kept without them, found again by a solve)."""
 
     start: int
     count: int
@@ -51,6 +60,7 @@ class KeptOverlaps:
     values: np.ndarray
     diagonal: np.ndarray
     quadrature: int = FINE_QUADRATURE
+    contacts: np.ndarray | None = None
 
     def matrix(self) -> csr_matrix:
         """The block (count x count, float64)."""
@@ -109,9 +119,12 @@ def overlap_key(
     diagonal: np.ndarray,
     quadrature: int,
     crease_angle: float = AtlasSettings().crease_angle,
+    contacts: np.ndarray | None = None,
 ) -> str:
     """The key of a kept block of C (edges, values, diagonal) of `atlas` (one atlas object's patches,
-    as stored: see the module's docstring for what it covers). surfaces: or their object_keys()."""
+    as stored: see the module's docstring for what it covers), with its contact flags where it keeps
+    them (int32; None: a block kept without them has the key it had before they were kept).
+    surfaces: or their object_keys()."""
     keys = object_keys(surfaces) if isinstance(surfaces, Surfaces) else surfaces
     world = sorted(set(keys))
     rank = {k: r for r, k in enumerate(world)}
@@ -136,6 +149,8 @@ def overlap_key(
         _update(h, a)
     for a in (edges, values, diagonal):
         _update(h, a)
+    if contacts is not None:
+        _update(h, np.asarray(contacts, np.int32))
     return h.hexdigest()
 
 
@@ -146,24 +161,25 @@ def keep(
     quadrature: int,
     crease_angle: float,
     start: int = 0,
+    contacts: np.ndarray | None = None,
 ) -> KeptOverlaps:
     """The block C (len(atlas) square) of `atlas` (as stored, one atlas object's patches; start: the
-    position of its first patch in the atlas a solve concatenates) ready to be kept, with its key.
+    position of its first patch in the atlas a solve concatenates) ready to be kept, with its key;
+    contacts (len(atlas),): the patches' contact flags C was integrated with (contact.contact_flags).
     surfaces: or their object_keys() (computed once for many blocks)."""
     edges, values, diagonal = kept_form(C)
-    key = overlap_key(surfaces, atlas, edges, values, diagonal, quadrature, crease_angle)
-    return KeptOverlaps(start, len(atlas), key, edges, values, diagonal, quadrature)
+    if contacts is not None:
+        contacts = np.asarray(contacts, np.int32)
+    key = overlap_key(surfaces, atlas, edges, values, diagonal, quadrature, crease_angle, contacts)
+    return KeptOverlaps(start, len(atlas), key, edges, values, diagonal, quadrature, contacts)
 
 
-def usable(
-    surfaces: Surfaces, atlas: Atlas, kept: list[KeptOverlaps]
-) -> tuple[np.ndarray, csr_matrix | None]:
-    """The kept blocks that fit (their key, with their own quadrature, is the key of what the solve
-    reads now), as (known (n,) bool: the patches whose rows and columns of C they give, C (n x n)
-    holding them)."""
+def fitting(surfaces: Surfaces, atlas: Atlas, kept: list[KeptOverlaps]) -> list[KeptOverlaps]:
+    """The kept blocks that fit: their key, with their own quadrature, is the key of what the solve
+    reads now (no two of them hold the same patch)."""
     n = len(atlas)
     known = np.zeros(n, bool)
-    blocks = []
+    out = []
     keys = object_keys(surfaces) if kept else []
     for k in kept:
         part = np.arange(k.start, k.start + k.count)
@@ -171,10 +187,32 @@ def usable(
             continue
         if len(k.diagonal) != k.count or (len(k.edges) and (k.edges.min() < 0 or k.edges.max() >= k.count)):
             continue
-        key = overlap_key(keys, atlas.select(part), k.edges, k.values, k.diagonal, k.quadrature)
+        if k.contacts is not None and len(k.contacts) != k.count:
+            continue
+        key = overlap_key(
+            keys, atlas.select(part), k.edges, k.values, k.diagonal, k.quadrature, contacts=k.contacts
+        )
         if key != k.key:
             continue
         known[part] = True
+        out.append(k)
+    return out
+
+
+def usable(
+    surfaces: Surfaces, atlas: Atlas, kept: list[KeptOverlaps]
+) -> tuple[np.ndarray, csr_matrix | None]:
+    """The kept blocks that fit (fitting()), as stacked() gives them."""
+    return stacked(fitting(surfaces, atlas, kept), len(atlas))
+
+
+def stacked(fit: list[KeptOverlaps], n: int) -> tuple[np.ndarray, csr_matrix | None]:
+    """(known (n,) bool: the patches whose rows and columns of C the blocks `fit` (fitting()) of an
+    atlas of n patches give, C (n x n) holding them; None: no block)."""
+    known = np.zeros(n, bool)
+    blocks = []
+    for k in fit:
+        known[k.start : k.start + k.count] = True
         blocks.append(k.matrix().tocoo())
         blocks[-1].row += k.start
         blocks[-1].col += k.start
@@ -184,3 +222,15 @@ def usable(
     cols = np.concatenate([b.col for b in blocks])
     vals = np.concatenate([b.data for b in blocks])
     return known, coo_matrix((vals, (rows, cols)), shape=(n, n)).tocsr()
+
+
+def kept_contacts(fit: list[KeptOverlaps], n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(flags (n,) int32, flagged (n,) bool): the contact flags kept by the blocks `fit` (fitting())
+    of an atlas of n patches, and the patches they give them for."""
+    flags = np.zeros(n, np.int32)
+    flagged = np.zeros(n, bool)
+    for k in fit:
+        if k.contacts is not None:
+            flags[k.start : k.start + k.count] = k.contacts
+            flagged[k.start : k.start + k.count] = True
+    return flags, flagged

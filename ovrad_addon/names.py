@@ -19,6 +19,9 @@ RANDOM = "ovrad_random"  # FLOAT in [0, 1), a stable random value per patch (dis
 RADIOSITY = "ovrad_radiosity"  # FLOAT_COLOR, solved radiance B/pi
 DIRECT = "ovrad_direct"  # FLOAT_COLOR, the first shot's share of it (direct light of lamps and emitters)
 SKY = "ovrad_sky"  # INT, 1 where bake points and near gather hits cast sky rays (pipeline.bake_sky), by Solve
+# INT, with the kept C only: the contact flags C was integrated with (contact.contact_flags: 1 cut,
+# 2 whole, 4 covered), so a solve whose kept C fits need not find the contacts again
+CONTACTS = "ovrad_contacts"
 
 # EDGE attribute on an atlas object: one edge between each two overlapping patches (kept_overlaps.py).
 OVERLAP_C = "ovrad_c"  # FLOAT2, (C[i, j], C[j, i]) of the edge's vertices i < j (overlap.overlap_matrix's C)

@@ -15,6 +15,7 @@ from scipy.sparse import csc_matrix, csr_matrix, diags, spmatrix
 
 from .atlas import Atlas, SurfaceIndex, index_surfaces
 from .clutter import clutter_from_atlas
+from .contact import seed_contacts
 from .direct import DirectLight, direct_irradiance, triangle_normals
 from .errors import OvradError
 from .gather import (
@@ -27,7 +28,7 @@ from .gather import (
     may_see_sky,
     sampled_emission,
 )
-from .kept_overlaps import KeptOverlaps, usable
+from .kept_overlaps import KeptOverlaps, fitting, kept_contacts, stacked
 from .lights import Lamp, area_side
 from .memory import StagePeaks
 from .overlap import alpha_at, overlap_matrix, patch_average, patch_quadrature, reconstruct
@@ -238,11 +239,17 @@ def both_sides_index(surfaces: Surfaces, backend: str = "auto", atlas: Atlas | N
     return index if atlas is None else index.with_clutter(clutter_from_atlas(index, atlas))
 
 
-def locate(surfaces: Surfaces, atlas: Atlas, backend: str = "auto") -> Problem:
+def locate(
+    surfaces: Surfaces, atlas: Atlas, backend: str = "auto", kept: Sequence[KeptOverlaps] = ()
+) -> Problem:
     """A problem for reconstruction only (no C, no transport): the surfaces indexed as prepare()
-    indexes them and the patches re-attached to their sheets. Much cheaper than prepare()."""
+    indexes them and the patches re-attached to their sheets. Much cheaper than prepare(). kept:
+    blocks of C kept with the atlas; the contacts of those that fit are taken from them."""
     index = both_sides_index(surfaces, backend, atlas)
-    return Problem(surfaces, attach_sheets(atlas, index), index, None, None, 0, {})
+    atlas = attach_sheets(atlas, index)
+    if kept:
+        kept_contacts_of(atlas, index, fitting(surfaces, atlas, list(kept)))
+    return Problem(surfaces, atlas, index, None, None, 0, {})
 
 
 def prepare(
@@ -308,7 +315,9 @@ def overlaps(
     else AtlasSettings.rule_order of the atlas's size (what Generate would choose)."""
     if quadrature is None:
         quadrature = max((k.quadrature for k in kept), default=AtlasSettings().rule_order(len(atlas)))
-    known, C_kept = usable(surfaces, atlas, list(kept))
+    fit = fitting(surfaces, atlas, list(kept))
+    known, C_kept = stacked(fit, len(atlas))
+    kept_contacts_of(atlas, index, fit)  # before any row is integrated: the contacts C was integrated with
     todo = np.flatnonzero(~known)
     report_stage(progress, 0.05, "integrating overlaps" if len(todo) else "overlaps kept with the atlas")
     C, support = overlap_matrix(
@@ -323,6 +332,14 @@ def overlaps(
         # exactly the row sums, as integrated C's are (its values come back in float32)
         support[known] = np.asarray(C_kept.sum(axis=1)).ravel()[known]
     return C, support, known
+
+
+def kept_contacts_of(atlas: Atlas, index: SurfaceIndex, fit: Sequence[KeptOverlaps]) -> None:
+    """Cache on `index` the contacts of `atlas` that the kept blocks `fit` (kept_overlaps.fitting)
+    hold, the other patches' found again (contact.seed_contacts); nothing where none holds any."""
+    flags, flagged = kept_contacts(list(fit), len(atlas))
+    if flagged.any():
+        seed_contacts(atlas, index, flags, flagged)
 
 
 def laplacian_smoothed(C: spmatrix, weight: float) -> spmatrix:

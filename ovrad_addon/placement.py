@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
-from .geometry import tangent_frame
+from .geometry import tangent_frame, unique_rows
 from .names import SHAPE_DISK, SHAPE_SQUARE
 from .surfaces import triangle_geometry
 
@@ -146,8 +146,8 @@ def place_planar(
     qb = np.round(e_b / (eps * 100)).astype(np.int64)
     swap = (qa[:, 0] > qb[:, 0]) | ((qa[:, 0] == qb[:, 0]) & (qa[:, 1] > qb[:, 1]))
     key = np.concatenate([np.where(swap[:, None], qb, qa), np.where(swap[:, None], qa, qb)], axis=1)
-    _, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    border = cnt[inv.reshape(-1)] == 1
+    _, inv, cnt = unique_rows(key, return_inverse=True, return_counts=True)
+    border = cnt[inv] == 1
     ba, bb = e_a[border], e_b[border]
     boundary = np.zeros(len(cells), bool)
     if len(ba) and shapes == "AUTO":
@@ -282,8 +282,7 @@ def place_curved(
         vox = np.zeros(len(pts), np.int64)
     else:
         key = np.floor((pts - pts.min(axis=0)) / spacing).astype(np.int64)
-        _, vox = np.unique(key, axis=0, return_inverse=True)
-        vox = vox.reshape(-1)
+        _, vox = unique_rows(key, return_inverse=True)
         if area < SLIVER_PIECE * disk:
             vox = _merge_slivers(pts, vox, _sample_areas(tri, areas), SLIVER_AREA * spacing**2)
     k = int(vox.max()) + 1

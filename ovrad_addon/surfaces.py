@@ -11,6 +11,7 @@ from scipy.sparse.csgraph import connected_components
 
 from .albedo import TextureAlbedo, albedo_at, triangle_means
 from .errors import OvradError
+from .geometry import unique_rows
 
 
 @dataclass(frozen=True)
@@ -106,6 +107,14 @@ class Surfaces:
         return float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
 
     @cached_property
+    def welded(self) -> tuple[np.ndarray, np.ndarray]:
+        """Vertices welded by position (to 1e-9 of the extent; meshes often split vertices for sharp
+        shading): (first (w,), the first vertex of each welded one; weld (V,), each vertex's)."""
+        q = np.round(self.vertices / (max(self.extent, 1e-300) * 1e-9)).astype(np.int64)
+        _, first, weld = unique_rows(q, return_index=True, return_inverse=True)
+        return first, weld
+
+    @cached_property
     def _by_object(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(triangles sorted by object, stably; first position of each object in it; counts)."""
         order = np.argsort(self.object_index, kind="stable")
@@ -191,11 +200,8 @@ def find_charts(surfaces: Surfaces, crease_angle_deg: float) -> Charts:
     areas, normals = triangle_geometry(corners)
     scale = max(surfaces.extent, 1e-300)
     degenerate = areas <= (1e-12 * scale) ** 2
-    # Weld vertices by position (relative tolerance), per object so touching objects stay apart.
-    q = np.round(surfaces.vertices / (scale * 1e-9)).astype(np.int64)
-    _, weld = np.unique(q, axis=0, return_inverse=True)
-    weld = weld.reshape(-1)
-    tri = weld[surfaces.triangles]
+    # Vertices welded by position; edges are keyed by object below, so touching objects stay apart.
+    tri = surfaces.welded[1][surfaces.triangles]
     n_tri = len(tri)
     # Each undirected edge with the triangles using it.
     e = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
@@ -205,8 +211,7 @@ def find_charts(surfaces: Surfaces, crease_angle_deg: float) -> Charts:
     key = np.stack([obj, e[:, 0], e[:, 1]], axis=1)
     keep = ~degenerate[owner] & (e[:, 0] != e[:, 1])
     key, owner = key[keep], owner[keep]
-    _, edge_id, edge_uses = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    edge_id = edge_id.reshape(-1)
+    _, edge_id, edge_uses = unique_rows(key, return_inverse=True, return_counts=True)
     order = np.argsort(edge_id, kind="stable")
     sid, sown = edge_id[order], owner[order]
     same = sid[1:] == sid[:-1]

@@ -12,6 +12,7 @@ bpy = pytest.importorskip("bpy")
 pytestmark = pytest.mark.blender
 
 KEY = "ovrad_overlap_key"
+CONTACTS = "ovrad_contacts"
 RECEIVERS = ("Floor", "Box")
 
 
@@ -97,6 +98,31 @@ def test_the_kept_c_gives_the_solve_that_integrates_it_again(saved, ovrad):
     assert top > 0
     for name, values in fresh.items():
         # float32 attributes both; the kept C moves the answer by about 1e-8 of it
+        np.testing.assert_allclose(kept[name], values, rtol=1e-5, atol=1e-6 * top, err_msg=name)
+
+
+def test_the_kept_contacts_are_taken(saved, ovrad, monkeypatch):
+    """Each atlas keeps its patches' contact flags beside its C, under its key; a solve of the
+    reopened file takes them (contact.py's rule is never cast). With them removed by hand the kept
+    C no longer fits (as with a kept value changed): C is integrated and the contacts found again,
+    and the solve is the same. (Blocks kept before the flags were, with keys made without them,
+    still fit: test_kept_overlaps.py.)"""
+    for obj in atlas_objects():
+        attr = obj.data.attributes.get(CONTACTS)
+        assert attr is not None and (attr.domain, attr.data_type) == ("POINT", "INT"), obj.name
+        assert len(attr.data) == len(obj.data.vertices)
+    engine = ovrad.ovrad_addon.contact
+    rule, cast = engine._rule, []
+    monkeypatch.setattr(engine, "_rule", lambda *a, **k: cast.append(1) or rule(*a, **k))
+    kept_stats, kept = solve(ovrad)
+    n = sum(len(v) for v in kept.values())
+    assert kept_stats["overlaps_kept"] == n and not cast
+    for obj in atlas_objects():
+        obj.data.attributes.remove(obj.data.attributes[CONTACTS])
+    fresh_stats, fresh = solve(ovrad)
+    assert fresh_stats["overlaps_kept"] == 0 and cast
+    top = max(np.abs(v).max() for v in fresh.values())
+    for name, values in fresh.items():
         np.testing.assert_allclose(kept[name], values, rtol=1e-5, atol=1e-6 * top, err_msg=name)
 
 

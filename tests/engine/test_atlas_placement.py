@@ -204,7 +204,7 @@ def test_voxel_slivers_join_a_neighbour_so_no_two_patches_nearly_coincide(monkey
     s = bent_pieces_in_a_room()
 
     def nearly_coincident():
-        atlas, C, _ = build_atlas_and_overlaps(s, AtlasSettings(patch_size=0.09))
+        atlas, C, _, _ = build_atlas_and_overlaps(s, AtlasSettings(patch_size=0.09))
         coo, csr = C.tocoo(), C.tocsr()
         d = csr.diagonal()
         pair = (coo.row != coo.col) & (atlas.source_object[coo.row] == 1)

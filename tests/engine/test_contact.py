@@ -10,6 +10,7 @@ contact lines, and the vertices on the lines were up to twice too bright or blac
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 import scenes
 from ovrad_addon.atlas import build_atlas
@@ -236,3 +237,33 @@ def test_a_patch_straddling_a_covers_rim_splits_there():
     np.testing.assert_array_equal(over(anchor), over(pts[a.row]))
     total = np.asarray(a.tocsr().sum(axis=1)).ravel()
     np.testing.assert_allclose(total, 1.0, atol=1e-12)
+
+
+@pytest.mark.parametrize("make", [scenes.cornell, two_rooms, lambda: _lamp_room(cut=False)])
+def test_splitting_finds_the_contacts_of_the_split_atlas(monkeypatch, make):
+    """split_at_contacts caches the split atlas's contacts (its rule points seen from its float32
+    anchors) so that integrating C does not find them again: they are what contacts() finds for
+    that atlas on an index of its own, bit for bit (blocks on a floor, a partition, a lamp's cover)."""
+    from ovrad_addon import atlas as atlas_mod
+    from ovrad_addon import contact
+
+    s = make()
+    split = atlas_mod.split_at_contacts
+    made = []
+
+    def keep_split(atlas, index):
+        made.append((split(atlas, index), index))
+        return made[-1][0]
+
+    monkeypatch.setattr(atlas_mod, "split_at_contacts", keep_split)
+    settings = AtlasSettings(patch_count=600)
+    build_atlas(s, settings)
+    atlas, index = made[0]
+    cached = index.cache[contact._key(atlas)]
+    found = contacts(atlas, atlas_mod.index_surfaces(s, settings))
+    assert found is not cached
+    for name in ("anchor", "lift", "cut", "whole", "covered"):
+        np.testing.assert_array_equal(getattr(cached, name), getattr(found, name), err_msg=name)
+    pieces = np.unique(atlas.centers, axis=0, return_counts=True)[1]
+    assert found.cut.any() and found.whole.any() and (pieces > 1).any()
+    np.testing.assert_array_equal(atlas.as_stored().anchor, atlas.anchor)  # as a file keeps them

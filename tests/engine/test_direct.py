@@ -55,6 +55,32 @@ def test_emitter_irradiance_matches_lambert_contour_form_factor(flip):
     assert 3.0 < errors[0] / errors[1] < 5.0
 
 
+def test_the_emitter_rule_is_made_once_per_surfaces_and_emitters(monkeypatch):
+    """A gather asks for the emitters' light at every chunk of its near hits: the rule is made once
+    for the same surfaces and emitters, again for others, and holds neither alive."""
+    import gc
+
+    s, _ = _emitter_over_plane(False)
+    rays = make_rays(s.vertices, s.triangles)
+    pts, nrm = np.zeros((5, 3)), np.tile([0.0, 0.0, 1.0], (5, 1))
+    made = []
+    real = direct.emitter_samples
+    monkeypatch.setattr(direct, "emitter_samples", lambda *a, **k: made.append(1) or real(*a, **k))
+    emitters = s.emission.sum(1) > 0
+    first, _ = emitter_irradiance(s, rays, emitters, pts, nrm, 64)
+    again, _ = emitter_irradiance(s, rays, emitters, pts, nrm, 64)
+    assert len(made) == 1
+    np.testing.assert_array_equal(first, again)
+    emitter_irradiance(s, rays, emitters.copy(), pts, nrm, 64)  # other emitters (an equal copy)
+    emitter_irradiance(s, rays, emitters, pts, nrm, 16)  # another count
+    assert len(made) == 3
+    n = len(direct._RULES)
+    del emitters
+    gc.collect()
+    emitter_irradiance(s, rays, s.emission.sum(1) > 0, pts, nrm, 64)
+    assert len(made) == 4 and len(direct._RULES) <= n  # the dead entries went
+
+
 def test_shadow_ray_from_a_concave_edge_is_not_blocked_by_the_neighbouring_face():
     # A floor and a wall meeting at x = 0; points on the line where they meet lie in both planes.
     floor = scenes.quad([0, -1, 0], [2, -1, 0], [2, 1, 0], [0, 1, 0])
@@ -331,3 +357,39 @@ def test_a_lamp_quad_just_under_a_ceiling_does_not_ring():
     quad = np.array([[0.75, 0.75, 1.99], [0.75, 1.25, 1.99], [1.25, 1.25, 1.99], [1.25, 0.75, 1.99]])
     exact = np.pi * analytic.ff_point_to_polygon(over, np.array([[0.0, 0.0, -1.0]]), quad) * 10.0
     np.testing.assert_allclose(H[:, 0], exact, rtol=1e-4)
+
+
+def test_the_centroid_rule_of_far_picked_triangles_is_the_contour_integral_to_a_percent():
+    """_near_picked takes a triangle's centroid rule (area cos cos / d^2) beyond NEAR_EXACT x its size
+    when it lies wholly above the point's horizon: against Lambert's contour integral on random such
+    pairs, 0.12 % on average and 1 % at the 99th percentile (edge-on triangles, whose light is faint,
+    are the worst)."""
+    from ovrad_addon.surfaces import triangle_geometry
+
+    rng = np.random.default_rng(0)
+    k = 20000
+    tri = rng.normal(size=(k, 3, 3)) * 0.05
+    centroid = tri.mean(axis=1)
+    size = np.linalg.norm(tri - centroid[:, None], axis=2).max(axis=1)
+    dist = size * rng.uniform(direct.NEAR_EXACT, 40.0, k)
+    toward = rng.normal(size=(k, 3))
+    toward /= np.linalg.norm(toward, axis=1, keepdims=True)
+    points = centroid - dist[:, None] * toward
+    normals = rng.normal(size=(k, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    normals = np.where((np.einsum("ij,ij->i", normals, toward) < 0)[:, None], -normals, normals)
+    above = np.einsum("kcj,kj->kc", tri - points[:, None], normals).min(axis=1) > 0
+    area, normal = triangle_geometry(tri)
+    rule = (
+        area
+        * np.einsum("ij,ij->i", toward, normals)
+        * np.abs(np.einsum("ij,ij->i", toward, normal))
+        / dist**2
+    )
+    exact = polygon_irradiance(points, normals, tri)
+    ok = above & (exact > 0)
+    assert ok.sum() > 15000
+    rel = np.abs(rule[ok] / exact[ok] - 1.0)
+    assert rel.mean() < 0.003 and np.percentile(rel, 99) < 0.02
+    # summed over many triangles, as a panel's light is, the rule is closer still
+    assert abs(rule[ok].sum() / exact[ok].sum() - 1.0) < 0.002

@@ -10,12 +10,14 @@ import pytest
 from scipy.sparse import csr_matrix
 
 import scenes
+from ovrad_addon import contact as contact_mod
 from ovrad_addon import settings as settings_mod
 from ovrad_addon.atlas import build_atlas_and_overlaps
+from ovrad_addon.contact import CUT, WHOLE, contact_flags, contacts
 from ovrad_addon.kept_overlaps import KeptOverlaps, keep, kept_form, usable
 from ovrad_addon.names import SHAPE_BALL
 from ovrad_addon.overlap import overlap_matrix
-from ovrad_addon.pipeline import SolveSettings, attach_sheets, both_sides_index, prepare, solve
+from ovrad_addon.pipeline import SolveSettings, attach_sheets, both_sides_index, locate, prepare, solve
 from ovrad_addon.settings import COARSE_QUADRATURE, FINE_QUADRATURE, AtlasSettings
 from ovrad_addon.surfaces import Surfaces
 
@@ -70,24 +72,31 @@ def by_object(atlas, C):
     return atlas.select(order), C[order][:, order]
 
 
-def blocks(s: Surfaces, atlas, C) -> list[KeptOverlaps]:
+def blocks(s: Surfaces, atlas, C, flags=None) -> list[KeptOverlaps]:
     """One kept block per object holding patches, as Generate writes them (one atlas object each);
-    atlas: by_object()'s."""
+    atlas: by_object()'s; flags: the patches' contact flags (None: kept without, as before them)."""
     out, start = [], 0
     for o in np.unique(atlas.source_object):
         sel = np.flatnonzero(atlas.source_object == o)
         assert np.array_equal(sel, start + np.arange(len(sel))), "an object's patches are together"
-        out.append(keep(s, atlas.select(sel), C[sel][:, sel], QUADRATURE, SETTINGS.crease_angle, start))
+        own = None if flags is None else flags[sel]
+        out.append(keep(s, atlas.select(sel), C[sel][:, sel], QUADRATURE, SETTINGS.crease_angle, start, own))
         start += len(sel)
     return out
 
 
 @pytest.fixture(scope="module")
-def room():
+def built():
     s = busy_room()
-    atlas, C, quadrature = build_atlas_and_overlaps(s, SETTINGS)
-    assert quadrature == QUADRATURE == FINE_QUADRATURE
-    return s, atlas, C
+    out = build_atlas_and_overlaps(s, SETTINGS)
+    assert out.quadrature == QUADRATURE == FINE_QUADRATURE
+    return s, out
+
+
+@pytest.fixture(scope="module")
+def room(built):
+    s, out = built
+    return s, out.atlas, out.C
 
 
 def test_the_scene_has_what_c_is_hard_on(room):
@@ -202,13 +211,65 @@ def test_stale_blocks_are_integrated_again(room):
     assert abs(problem.C - full).max() <= 1e-6 * abs(full).max()
 
 
+def test_generate_gives_the_contacts_a_solve_finds(built):
+    """The contact flags Generate integrated C with are those a solve's index finds for the stored
+    atlas, patch for patch (contact.contacts), in a scene with cut patches (the partition)."""
+    s, out = built
+    index = both_sides_index(s, atlas=out.atlas)
+    found = contacts(attach_sheets(out.atlas, index), index)
+    np.testing.assert_array_equal(contact_flags(found), out.contacts)
+    assert np.any(out.contacts & CUT) and np.any(out.contacts & WHOLE)
+    np.testing.assert_array_equal(found.anchor, out.atlas.anchor)
+
+
+def test_a_solve_takes_the_kept_contacts(built, monkeypatch):
+    """With every kept block fitting, a solve finds no contact again (the rule contacts() casts is
+    never called) and its contacts are those found afresh; with one block stale, that block's
+    patches' contacts are found again and the others kept, the same as all found afresh."""
+    s, out = built
+    order = np.argsort(out.atlas.source_object, kind="stable")
+    atlas, C, flags = out.atlas.select(order), out.C[order][:, order], out.contacts[order]
+    kept = blocks(s, atlas, C, flags)
+
+    def fresh(a):
+        index = both_sides_index(s, atlas=a)
+        return contacts(attach_sheets(a, index), index)
+
+    def same(c, d):
+        for f in ("anchor", "lift", "cut", "whole", "covered"):
+            np.testing.assert_array_equal(getattr(c, f), getattr(d, f), err_msg=f)
+
+    expected = fresh(atlas)
+    with monkeypatch.context() as m:
+        m.setattr(contact_mod, "_rule", lambda *a, **k: pytest.fail("contacts found again"))
+        problem = prepare(s, atlas, FAST, kept=kept)
+        assert problem.kept == len(atlas)
+        same(contacts(problem.atlas, problem.index), expected)
+        # a bake of a reopened file (locate) takes them too
+        located = locate(s, atlas, kept=kept)
+        same(contacts(located.atlas, located.index), expected)
+    # one patch of the partition edited: its block is integrated, its contacts found, again
+    k = int(np.flatnonzero(atlas.source_object == 2)[0])
+    radii = atlas.radii.copy()
+    radii[k] *= 1.001
+    edited = replace(atlas, radii=radii)
+    problem = prepare(s, edited, FAST, kept=kept)
+    assert problem.kept == len(atlas) - int(np.sum(atlas.source_object == 2))
+    same(contacts(problem.atlas, problem.index), fresh(edited))
+    # kept flags edited: that block no longer fits
+    bad = kept[2].contacts.copy()
+    bad[0] ^= CUT
+    known, _ = usable(s, atlas, [*kept[:2], replace(kept[2], contacts=bad), *kept[3:]])
+    np.testing.assert_array_equal(known, atlas.source_object != atlas.source_object[kept[2].start])
+
+
 def test_a_large_atlas_keeps_the_coarser_rule_it_was_integrated_with(monkeypatch):
     """Generate integrates a large atlas's C with the coarse rule (AtlasSettings.rule_order; here
     every atlas counts as large) and keeps that rule with the block; a solve uses the block, checked
     with its own rule, even where its own choice for the atlas would be the fine one."""
     s = scenes.cornell()
     monkeypatch.setattr(settings_mod, "COARSE_FROM", 1)
-    atlas, C, quadrature = build_atlas_and_overlaps(s, AtlasSettings(patch_count=300))
+    atlas, C, quadrature, _ = build_atlas_and_overlaps(s, AtlasSettings(patch_count=300))
     assert quadrature == COARSE_QUADRATURE
     index = both_sides_index(s, atlas=atlas)
     coarse, _ = overlap_matrix(attach_sheets(atlas, index), index, COARSE_QUADRATURE)
