@@ -147,7 +147,8 @@ def emitter_samples(
 
 NEAR_EMITTER = 2.0  # a point closer to an emitting triangle's samples than this x their spacing
 # gets that triangle's light from its exact form factor (polygon_irradiance), not from the samples
-NEAR_EXACT = 10.0  # ... or, picked samples (_near_picked), from its centroid when this x its size away
+NEAR_EXACT = 10.0  # ... or, picked samples (_near_picked), a node of the light tree as one point this x its
+# radius away
 
 
 def polygon_irradiance(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray) -> np.ndarray:
@@ -155,6 +156,15 @@ def polygon_irradiance(points: np.ndarray, normals: np.ndarray, triangles: np.nd
     radiance emitting from both sides, unoccluded: (1/2) |sum over edges gamma_i n . c_i| (Lambert's
     contour integral, pi x the form factor) over the part of the triangle above the point's plane."""
     h = np.einsum("kcj,kj->kc", triangles - points[:, None], normals)
+    whole = h.min(axis=1) > 0
+    if whole.all():
+        return _unclipped_irradiance(triangles - points[:, None], normals)
+    if whole.any():
+        out = np.empty(len(points))
+        out[whole] = _unclipped_irradiance(triangles[whole] - points[whole, None], normals[whole])
+        part = ~whole
+        out[part] = polygon_irradiance(points[part], normals[part], triangles[part])
+        return out
     slots = np.zeros((len(points), 6, 3))
     valid = np.zeros((len(points), 6), bool)
     for j in range(3):  # Sutherland-Hodgman: each corner above the plane, each edge's crossing
@@ -179,6 +189,19 @@ def polygon_irradiance(points: np.ndarray, normals: np.ndarray, triangles: np.nd
         total += np.where(
             use & (cn > 0), gamma * np.einsum("kj,kj->k", c, normals) / np.maximum(cn, 1e-300), 0.0
         )
+    return 0.5 * np.abs(total)
+
+
+def _unclipped_irradiance(r: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """polygon_irradiance of triangles wholly above the points' planes, given as their corners less
+    the points (k, 3, 3): the contour's three edges, nothing to clip."""
+    total = np.zeros(len(r))
+    for j in range(3):
+        a, b = r[:, j], r[:, (j + 1) % 3]
+        c = np.cross(a, b)
+        cn = np.sqrt(np.einsum("kj,kj->k", c, c))
+        gamma = np.arctan2(cn, np.einsum("kj,kj->k", a, b))
+        total += np.where(cn > 0, gamma * np.einsum("kj,kj->k", c, normals) / np.maximum(cn, 1e-300), 0.0)
     return 0.5 * np.abs(total)
 
 
@@ -256,14 +279,15 @@ def _near_emitters(H, rs, P, N, src: EmitterSamples, d, g, pair, lit) -> None:
     np.add.at(H, rs[i], (exact * seen_fraction - sampled)[:, None] * src.triangle_radiance[tri[e]])
 
 
-NEAR_PAIRS = 1 << 20  # (point, near triangle) pairs _near_picked holds at once
+NEAR_POINTS = 1 << 13  # points whose near emitters _near_picked finds at once (memory: their frontier)
+NEAR_CONE = 0.9  # a light-tree node whose normals stray more than acos(this) from its axis is never one point
 
 
-_RULES: dict = {}  # (id(surfaces), id(emitters), samples, scale) -> (weakrefs of both, rule, picked)
+_RULES: dict = {}  # (id(surfaces), id(emitters), samples, scale) -> (weakrefs of both, rule, light tree)
 
 
 def _emitter_rule(surfaces: Surfaces, emitters: np.ndarray, samples: int, scale: float):
-    """emitter_samples() and its _PickedTriangles (None unless samples are picked), made once for the
+    """emitter_samples() and its _LightTree (None unless samples are picked), made once for the
     same surfaces and emitters objects: a final gather asks for them at every chunk of its near hits
     (408 times in the production room's vertex bake). Weak references: nothing is kept alive."""
     key = (id(surfaces), id(emitters), int(samples), float(scale))
@@ -271,7 +295,7 @@ def _emitter_rule(surfaces: Surfaces, emitters: np.ndarray, samples: int, scale:
     if hit is not None and hit[0]() is surfaces and hit[1]() is emitters:
         return hit[2], hit[3]
     src = emitter_samples(surfaces, emitters, samples, scale)
-    near = _PickedTriangles(src) if src.pick is not None and len(src.area) else None
+    near = _LightTree(src) if src.pick is not None and len(src.area) else None
     for old in [k for k, v in _RULES.items() if v[0]() is None or v[1]() is None]:
         _RULES.pop(old, None)
     try:
@@ -281,87 +305,184 @@ def _emitter_rule(surfaces: Surfaces, emitters: np.ndarray, samples: int, scale:
     return src, near
 
 
-class _PickedTriangles:
-    """The emitting triangles of picked samples, for _near_picked: centroids, their KD-tree, each
-    triangle's reach from its centroid (size) and unit normal; built once per emitter_irradiance."""
+def _first_max_in_runs(values: np.ndarray, first: np.ndarray) -> np.ndarray:
+    """Index of the first largest value in each run of `values`, runs starting at `first` (sorted,
+    first[0] = 0) and tiling the array."""
+    seg = np.repeat(np.arange(len(first)), np.diff(np.r_[first, len(values)]))
+    hit = np.flatnonzero(values == np.maximum.reduceat(values, first)[seg])
+    return hit[np.r_[True, seg[hit][1:] != seg[hit][:-1]]]
+
+
+class _LightTree:
+    """The emitting triangles of picked samples as a binary tree (a light hierarchy), for
+    _near_picked. Level l has 2^l nodes, each a range [lo, hi) of the triangles in tree order; node
+    j's children are 2j and 2j + 1 a level down (a single triangle's: itself and an empty range).
+    Each node holds its area-weighted centroid, bounding radius, its triangles' centroids' spread
+    about it, the least and greatest reach of their near fields (their size + NEAR_EMITTER x their
+    samples' spacing), a normal axis and its cone (least cosine of a triangle's normal, turned to the
+    axis's side, with it), the power vector per colour (sum of area x radiance x turned normal: one
+    dot product gives a far flat node's light), the triangle nearest its centroid (a shadow ray's
+    target) and its samples' range in `sample_order`. At most 4 x triangles nodes; built once per
+    emitter rule, a level at a time (a sort within each node along its longest side)."""
 
     def __init__(self, src: EmitterSamples):
-        from scipy.spatial import cKDTree
-
         c = src.corners
-        self.centroid = c.mean(axis=1)
-        self.size = np.linalg.norm(c - self.centroid[:, None], axis=2).max(axis=1)
-        self.area, self.normal = triangle_geometry(c)
-        self.tree = cKDTree(self.centroid)
-        self.reach = NEAR_EMITTER * float(src.spacing.max()) + float(self.size.max())
+        n = len(c)
+        self.corners, self.radiance = c, src.triangle_radiance
+        centroid = c.mean(axis=1)
+        size = np.linalg.norm(c - centroid[:, None], axis=2).max(axis=1)
+        area, normal = triangle_geometry(c)
+        self.centroid_t, self.normal_t = centroid, normal
+        order = np.arange(n)
+        lo, hi = np.zeros(1, np.int64), np.full(1, n, np.int64)
+        ranges = [(lo, hi)]
+        while np.any(hi - lo > 1):
+            seg = np.repeat(np.arange(len(lo)), hi - lo)
+            x = centroid[order]
+            full = hi > lo
+            span = np.maximum.reduceat(x, lo[full], axis=0) - np.minimum.reduceat(x, lo[full], axis=0)
+            side = np.zeros(len(lo), np.int64)
+            side[full] = span.argmax(axis=1)
+            order = order[np.lexsort((x[np.arange(n), side[seg]], seg))]
+            mid = np.where(hi - lo > 1, lo + (hi - lo + 1) // 2, hi)
+            lo, hi = np.stack([lo, mid], 1).ravel(), np.stack([mid, hi], 1).ravel()
+            ranges.append((lo, hi))
+        rank = np.empty(n, np.int64)
+        rank[order] = np.arange(n)
+        at = rank[src.pick]
+        self.sample_order = np.argsort(at, kind="stable")
+        at = at[self.sample_order]
+        cen, a, nrm, rad = centroid[order], area[order], normal[order], src.triangle_radiance[order]
+        size, reach = size[order], size[order] + NEAR_EMITTER * src.spacing[order]
+        corner_lo, corner_hi = c[order].min(axis=1), c[order].max(axis=1)
+        self.levels = []
+        for lo, hi in ranges:
+            k, full = len(lo), hi > lo
+            first = lo[full]
+            seg = np.repeat(np.arange(k), hi - lo)
+            node = {"lo": lo, "hi": hi, "s_lo": np.searchsorted(at, lo), "s_hi": np.searchsorted(at, hi)}
+            w = np.add.reduceat(a, first)
+            C = np.zeros((k, 3))
+            C[full] = np.add.reduceat(cen * a[:, None], first, axis=0) / np.maximum(w, 1e-300)[:, None]
+            spread = np.linalg.norm(cen - C[seg], axis=1)
+            for name, values, fn in (
+                ("spread", spread, np.maximum),
+                ("radius", spread + size, np.maximum),
+                ("reach_min", reach, np.minimum),
+                ("reach_max", reach, np.maximum),
+            ):
+                node[name] = np.zeros(k)
+                node[name][full] = fn.reduceat(values, first)
+            big = np.zeros(k, np.int64)
+            big[full] = _first_max_in_runs(a, first)
+            turned = nrm * np.where(np.einsum("ij,ij->i", nrm, nrm[big[seg]]) < 0, -1.0, 1.0)[:, None]
+            axis = np.zeros((k, 3))
+            axis[full] = np.add.reduceat(turned * a[:, None], first, axis=0)
+            axis /= np.maximum(np.linalg.norm(axis, axis=1), 1e-300)[:, None]
+            cone = np.full(k, -1.0)
+            cone[full] = np.minimum.reduceat(np.einsum("ij,ij->i", turned, axis[seg]), first)
+            power = np.zeros((k, 3, 3))
+            power[full] = np.add.reduceat((a[:, None] * rad)[:, :, None] * turned[:, None, :], first, axis=0)
+            rep = np.zeros(k, np.int64)
+            rep[full] = order[_first_max_in_runs(-spread, first)]
+            box_lo, box_hi = np.zeros((k, 3)), np.zeros((k, 3))
+            box_lo[full] = np.minimum.reduceat(corner_lo, first, axis=0)
+            box_hi[full] = np.maximum.reduceat(corner_hi, first, axis=0)
+            node["box_mid"], node["box_half"] = (box_lo + box_hi) / 2, (box_hi - box_lo) / 2
+            node |= {"centroid": C, "axis": axis, "cone": cone, "power": power, "rep": rep}
+            self.levels.append(node)
 
 
-def _near_picked(H, rs, P, N, src: EmitterSamples, near_tris: _PickedTriangles, g, rays, eps: float) -> int:
+def _near_picked(H, rs, P, N, src: EmitterSamples, tree: _LightTree, g, rays, eps: float) -> int:
     """_near_emitters for samples picked on the power of more triangles than samples (a subdivided
-    panel, an emissive mesh): every emitting triangle within NEAR_EMITTER sample spacings of a point
-    gives its exact unoccluded light x whether the point sees its centroid (one shadow ray each), in
-    place of what the samples picked on it gave. Points go in blocks of at most about NEAR_PAIRS
-    pairs. Returns the rays cast."""
-    c, tree, reach = src.corners, near_tris.tree, near_tris.reach
-    centroid, size = near_tris.centroid, near_tris.size
-    counts = np.asarray(tree.query_ball_point(P, reach, return_length=True), np.int64)
-    if counts.sum() == 0:
-        return 0
-    cast, start, total = 0, 0, np.cumsum(counts)
-    while start < len(P):
-        before = total[start - 1] if start else 0
-        stop = max(start + 1, int(np.searchsorted(total, before + NEAR_PAIRS, "right")))
-        block = np.arange(start, min(stop, len(P)))
-        start = block[-1] + 1
-        if total[block[-1]] == before:
-            continue
-        found = tree.query_ball_point(P[block], reach)
-        k = np.fromiter((len(f) for f in found), np.int64, len(block))
-        i = np.repeat(block, k)
-        e = np.fromiter((t for f in found for t in f), np.int64, int(k.sum()))
-        v = centroid[e] - P[i]
-        dist = np.linalg.norm(v, axis=1)
-        near = dist - size[e] < NEAR_EMITTER * src.spacing[e]
-        i, e, v, dist = i[near], e[near], v[near], dist[near]
+    panel, an emissive mesh): the emitting triangles within NEAR_EMITTER sample spacings of a point
+    give their own light in place of what the samples picked on them gave. Walking the light tree,
+    a node of them farther than NEAR_EXACT x its radius, wholly above the point's horizon and flat
+    enough that the point sees all its faces from one side, gives its light as one point (its power
+    vector); a single triangle nearer than that, its exact unoccluded light (Lambert's contour);
+    each x whether the point sees the node's central triangle's centroid (one shadow ray). Points
+    go in blocks of NEAR_POINTS. Returns the rays cast."""
+    cast = 0
+    for b0 in range(0, len(P), NEAR_POINTS):
+        block = np.arange(b0, min(len(P), b0 + NEAR_POINTS))
+        cast += _near_block(H, rs, P, N, src, tree, g, rays, eps, block)
+    return cast
+
+
+def _near_block(H, rs, P, N, src: EmitterSamples, tree: _LightTree, g, rays, eps, block) -> int:
+    i, j = block, np.zeros(len(block), np.int64)
+    found = []  # per level: points, irradiance (., 3), central triangle, samples' range
+    for node in tree.levels:
+        live = node["hi"][j] > node["lo"][j]
+        i, j = i[live], j[live]
         if len(i) == 0:
-            continue
-        omega = v / np.maximum(dist, 1e-300)[:, None]
-        normal = near_tris.normal[e]
-        facing = np.einsum("ij,ij->i", omega, normal)
-        # exact (Lambert's contour) where the triangle is near or crosses the point's horizon; its
-        # centroid rule farther than NEAR_EXACT x its size (against the contour on 20 000 random
-        # such pairs: 0.12 % on average, 1 % at the 99th percentile, up to 4 % only seen edge-on,
-        # where its light is faint). A panel split into 7 200 triangles had every point under it
-        # run the contour for hundreds of them.
-        above = np.einsum("kcj,kj->kc", c[e] - P[i][:, None], N[i]).min(axis=1) > 0
-        point = above & (dist > NEAR_EXACT * size[e])
-        exact = np.empty(len(i))
-        contour = np.flatnonzero(~point)
-        exact[contour] = polygon_irradiance(P[i[contour]], N[i[contour]], c[e[contour]])
-        exact[point] = (
-            near_tris.area[e[point]]
-            * np.einsum("ij,ij->i", omega[point], N[i[point]])
-            * np.abs(facing[point])
-            / dist[point] ** 2
+            break
+        v = node["centroid"][j] - P[i]
+        d = np.sqrt(np.einsum("ij,ij->i", v, v))
+        spread, radius = node["spread"][j], node["radius"][j]
+        near = d + spread < node["reach_min"][j]
+        far = d - spread >= node["reach_max"][j]
+        single = node["hi"][j] - node["lo"][j] == 1
+        rep = node["rep"][j]
+        omega = v / np.maximum(d, 1e-300)[:, None]
+        height = np.einsum("ij,ij->i", v, N[i])
+        # wholly above the point's horizon, or wholly under it (no light, and its samples gave none):
+        # by the node's bounding ball or its box (a flat node parallel to the point's plane, a panel
+        # under a ceiling, has a thin box); a single triangle's by its corners
+        box = np.einsum("ij,ij->i", node["box_mid"][j] - P[i], N[i])
+        half = np.einsum("ij,ij->i", node["box_half"][j], np.abs(N[i]))
+        above = (height > radius) | (box > half)
+        under = (height < -radius) | (box < -half)
+        one = np.flatnonzero(single & near)
+        h = np.einsum("kcj,kj->kc", tree.corners[rep[one]] - P[i[one]][:, None], N[i[one]])
+        above[one], under[one] = h.min(axis=1) > 0, h.max(axis=1) <= 0
+        far |= under
+        near &= ~under
+        cone = node["cone"][j]
+        sees_one_side = (cone >= NEAR_CONE) & (
+            np.abs(np.einsum("ij,ij->i", omega, node["axis"][j])) >= np.sqrt(np.maximum(1.0 - cone**2, 0.0))
         )
-        ask = (np.einsum("ij,ij->i", omega, N[i]) > 0) & (exact > 0)
-        seen = np.ones(len(i), bool)  # a centroid under the point's horizon: the clipped part is seen
-        if ask.any():
-            origin = shadow_origin(P[i][ask], N[i][ask], omega[ask], eps)
-            seg = centroid[e][ask] - (eps * np.sign(facing[ask]))[:, None] * normal[ask] - origin
-            length = np.linalg.norm(seg, axis=1)
-            unit = seg / np.maximum(length, 1e-300)[:, None]
-            seen[ask] = ~rays.occluded(origin, unit, length * (1 - 1e-6))
-            cast += int(ask.sum())
-        np.add.at(H, rs[i], (exact * seen)[:, None] * src.triangle_radiance[e])
-        # less what the samples picked on those triangles gave (a triangle's samples are one run)
-        lo, hi = np.searchsorted(src.pick, e, "left"), np.searchsorted(src.pick, e, "right")
-        many = hi - lo
-        if many.sum():
-            row = np.repeat(i, many)
-            first = np.repeat(lo - np.r_[0, np.cumsum(many)[:-1]], many)
-            sample = np.arange(int(many.sum())) + first
-            np.add.at(H, rs[row], -g[row, sample][:, None] * src.radiance[sample])
+        point = near & above & sees_one_side & (d > NEAR_EXACT * radius)
+        contour = near & single & ~point
+        E = np.zeros((len(i), 3))
+        p = np.flatnonzero(point)
+        cos_r = height[p] / np.maximum(d[p], 1e-300)
+        E[p] = (
+            cos_r[:, None] * np.abs(np.einsum("kcj,kj->kc", node["power"][j[p]], omega[p])) / d[p, None] ** 2
+        )
+        q = np.flatnonzero(contour)
+        E[q] = polygon_irradiance(P[i[q]], N[i[q]], tree.corners[rep[q]])[:, None] * tree.radiance[rep[q]]
+        done = point | contour
+        found.append((i[done], E[done], rep[done], node["s_lo"][j[done]], node["s_hi"][j[done]]))
+        down = ~far & ~done
+        i, j = np.repeat(i[down], 2), np.stack([2 * j[down], 2 * j[down] + 1], 1).ravel()
+    if not found:
+        return 0
+    i, E, rep, s_lo, s_hi = (np.concatenate(x) for x in zip(*found, strict=True))
+    if len(i) == 0:
+        return 0
+    target = tree.centroid_t[rep]
+    v = target - P[i]
+    omega = v / np.maximum(np.linalg.norm(v, axis=1), 1e-300)[:, None]
+    ask = (np.einsum("ij,ij->i", omega, N[i]) > 0) & (E.sum(axis=1) > 0)
+    seen = np.ones(len(i), bool)  # a centroid under the point's horizon: the clipped part is seen
+    cast = int(ask.sum())
+    if cast:
+        normal = tree.normal_t[rep[ask]]
+        facing = np.einsum("ij,ij->i", omega[ask], normal)
+        origin = shadow_origin(P[i][ask], N[i][ask], omega[ask], eps)
+        seg = target[ask] - (eps * np.sign(facing))[:, None] * normal - origin
+        length = np.linalg.norm(seg, axis=1)
+        seen[ask] = ~rays.occluded(origin, seg / np.maximum(length, 1e-300)[:, None], length * (1 - 1e-6))
+    np.add.at(H, rs[i], E * seen[:, None])
+    # less what the samples picked on those triangles gave (a node's samples are one run)
+    many = s_hi - s_lo
+    if many.sum():
+        row = np.repeat(i, many)
+        sample = tree.sample_order[
+            np.arange(int(many.sum())) + np.repeat(s_lo - np.r_[0, np.cumsum(many)[:-1]], many)
+        ]
+        np.add.at(H, rs[row], -g[row, sample][:, None] * src.radiance[sample])
     return cast
 
 

@@ -226,10 +226,10 @@ def test_points_close_to_an_emitter_of_more_triangles_than_samples_get_its_exact
     # 280 % at 5 cm (a point right under a sample)
     assert max(v for (near, _), v in worst.items() if near > 0) < 0.015
     assert worst[0.0, 1e-2] > 0.3 and worst[0.0, 5e-2] > 1.0
-    # the near pairs go in blocks of points (memory): any block size gives the same light
+    # the near points go in blocks (memory): any block size gives the same light
     monkeypatch.setattr(direct, "NEAR_EMITTER", 2.0)
     whole, _ = emitter_irradiance(s, rays, np.ones(len(pt), bool), pts, nrm, 64)
-    monkeypatch.setattr(direct, "NEAR_PAIRS", 50)
+    monkeypatch.setattr(direct, "NEAR_POINTS", 7)
     blocks, _ = emitter_irradiance(s, rays, np.ones(len(pt), bool), pts, nrm, 64)
     np.testing.assert_allclose(blocks, whole, rtol=1e-12, atol=0)
 
@@ -393,3 +393,36 @@ def test_the_centroid_rule_of_far_picked_triangles_is_the_contour_integral_to_a_
     assert rel.mean() < 0.003 and np.percentile(rel, 99) < 0.02
     # summed over many triangles, as a panel's light is, the rule is closer still
     assert abs(rule[ok].sum() / exact[ok].sum() - 1.0) < 0.002
+
+
+@pytest.mark.parametrize("distance", [1.05, 1.3, 2.0, 12.0])
+def test_the_light_tree_gives_a_glowing_sphere_its_exact_light(distance, monkeypatch):
+    """A glowing icosphere (1 280 triangles, 64 samples picked on power) seen from outside, every
+    triangle made near (the light tree alone): against the sum of Lambert's contour integral over
+    the faces the point sees (the polyhedron is convex: a face is seen iff the point is on its outer
+    side; the inner sides of the others are hidden). Its nodes are curved: a node's centroid lies
+    inside the sphere, and a node holding faces of both sides (the whole sphere, seen from 12 radii
+    away) must be opened, not taken as one point."""
+    s = scenes.sphere(1.0, 3)
+    s = Surfaces.from_arrays(s.vertices, s.triangles, emission=[1.5, 1.0, 0.5])
+    rays = make_rays(s.vertices, s.triangles)
+    rng = np.random.default_rng(7)
+    toward = rng.normal(size=(150, 3))
+    toward /= np.linalg.norm(toward, axis=1, keepdims=True)
+    pts = distance * toward
+    nrm = -toward + 0.4 * rng.normal(size=(150, 3))  # tilted: the sphere crosses some horizons
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    c = s.corners
+    outward = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
+    exact = np.zeros(len(pts))
+    for k in range(len(pts)):
+        sees = np.einsum("ij,ij->i", pts[k] - c[:, 0], outward) > 0
+        at = np.tile(pts[k], (sees.sum(), 1))
+        exact[k] = polygon_irradiance(at, np.tile(nrm[k], (sees.sum(), 1)), c[sees]).sum()
+    monkeypatch.setattr(direct, "NEAR_EMITTER", 100.0)
+    H, _ = emitter_irradiance(s, rays, np.ones(len(c), bool), pts, nrm, 64)
+    np.testing.assert_allclose(H / [1.5, 1.0, 0.5], np.repeat(H[:, :1] / 1.5, 3, axis=1), rtol=1e-9)
+    # measured: at most 0.09 % of the brightest point's light, the total within 0.05 %
+    rel = np.abs(H[:, 0] / 1.5 - exact) / exact.max()
+    assert rel.max() < 0.005
+    assert abs(H[:, 0].sum() / 1.5 / exact.sum() - 1.0) < 0.002
