@@ -147,7 +147,7 @@ def emitter_samples(
 
 NEAR_EMITTER = 2.0  # a point closer to an emitting triangle's samples than this x their spacing
 # gets that triangle's light from its exact form factor (polygon_irradiance), not from the samples
-NEAR_EXACT = 10.0  # ... or, picked samples (_near_picked), a node of the light tree as one point this x its
+NEAR_EXACT = 4.0  # ... or, picked samples (_near_picked), a node of the light tree as one point this x its
 # radius away
 
 
@@ -280,7 +280,7 @@ def _near_emitters(H, rs, P, N, src: EmitterSamples, d, g, pair, lit) -> None:
 
 
 NEAR_POINTS = 1 << 13  # points whose near emitters _near_picked finds at once (memory: their frontier)
-NEAR_CONE = 0.9  # a light-tree node whose normals stray more than acos(this) from its axis is never one point
+NEAR_CONE = 0.97  # a light-tree node whose normals stray over acos(this) from its axis is never one point
 
 
 _RULES: dict = {}  # (id(surfaces), id(emitters), samples, scale) -> (weakrefs of both, rule, light tree)
@@ -355,42 +355,83 @@ class _LightTree:
         cen, a, nrm, rad = centroid[order], area[order], normal[order], src.triangle_radiance[order]
         size, reach = size[order], size[order] + NEAR_EMITTER * src.spacing[order]
         corner_lo, corner_hi = c[order].min(axis=1), c[order].max(axis=1)
-        self.levels = []
+        spoke = c[order] - cen[:, None]
+        own = np.einsum("tci,tci->ti", spoke[:, :, _PAIRS[0]], spoke[:, :, _PAIRS[1]]) / 12.0
+        self.levels = []  # per level: floats (k, 23) (columns: _F), ints (k, 4) (_I), power (k, 3, 3)
         for lo, hi in ranges:
-            k, full = len(lo), hi > lo
+            full = np.flatnonzero(hi > lo)
             first = lo[full]
-            seg = np.repeat(np.arange(k), hi - lo)
-            node = {"lo": lo, "hi": hi, "s_lo": np.searchsorted(at, lo), "s_hi": np.searchsorted(at, hi)}
-            w = np.add.reduceat(a, first)
-            C = np.zeros((k, 3))
-            C[full] = np.add.reduceat(cen * a[:, None], first, axis=0) / np.maximum(w, 1e-300)[:, None]
-            spread = np.linalg.norm(cen - C[seg], axis=1)
-            for name, values, fn in (
-                ("spread", spread, np.maximum),
-                ("radius", spread + size, np.maximum),
-                ("reach_min", reach, np.minimum),
-                ("reach_max", reach, np.maximum),
-            ):
-                node[name] = np.zeros(k)
-                node[name][full] = fn.reduceat(values, first)
-            big = np.zeros(k, np.int64)
-            big[full] = _first_max_in_runs(a, first)
-            turned = nrm * np.where(np.einsum("ij,ij->i", nrm, nrm[big[seg]]) < 0, -1.0, 1.0)[:, None]
-            axis = np.zeros((k, 3))
-            axis[full] = np.add.reduceat(turned * a[:, None], first, axis=0)
+            run = np.repeat(np.arange(len(full)), (hi - lo)[full])  # the full nodes tile the triangles
+            C = np.add.reduceat(cen * a[:, None], first, axis=0) / np.add.reduceat(a, first)[:, None]
+            spread = np.linalg.norm(cen - C[run], axis=1)
+            box_lo = np.minimum.reduceat(corner_lo, first, axis=0)
+            box_hi = np.maximum.reduceat(corner_hi, first, axis=0)
+            # the axis: the node's largest triangle's normal, then the area-weighted mean of the
+            # normals turned to its side; the cone: the least cosine of a turned normal with it
+            big = _first_max_in_runs(a, first)
+            turned = nrm * np.where(np.einsum("ij,ij->i", nrm, nrm[big[run]]) < 0, -1.0, 1.0)[:, None]
+            axis = np.add.reduceat(turned * a[:, None], first, axis=0)
             axis /= np.maximum(np.linalg.norm(axis, axis=1), 1e-300)[:, None]
-            cone = np.full(k, -1.0)
-            cone[full] = np.minimum.reduceat(np.einsum("ij,ij->i", turned, axis[seg]), first)
-            power = np.zeros((k, 3, 3))
+            cone = np.minimum.reduceat(np.einsum("ij,ij->i", turned, axis[run]), first)
+            # seen from one side where |axis . direction| >= this (never for a cone wider than NEAR_CONE)
+            one_side = np.where(cone >= NEAR_CONE, np.sqrt(np.maximum(1.0 - cone**2, 0.0)), np.inf)
+            # the node's second moment of area about C over its area (xx, yy, zz, xy, xz, yz): each
+            # triangle's centroid offset, plus its own (1/12 of the sum of its corners' offsets squared)
+            off = cen - C[run]
+            moment = a[:, None] * (off[:, _PAIRS[0]] * off[:, _PAIRS[1]] + own)
+            moment = np.add.reduceat(moment, first, axis=0) / np.add.reduceat(a, first)[:, None]
+            F = np.zeros((len(lo), 23))
+            F[full] = np.column_stack(
+                [
+                    C,
+                    np.maximum.reduceat(spread, first),
+                    np.maximum.reduceat(spread + size, first),
+                    np.minimum.reduceat(reach, first),
+                    np.maximum.reduceat(reach, first),
+                    (box_lo + box_hi) / 2,
+                    (box_hi - box_lo) / 2,
+                    axis,
+                    one_side,
+                    moment,
+                ]
+            )
+            I = np.zeros((len(lo), 4), np.int64)  # noqa: E741
+            I[:, 0] = hi - lo
+            I[full, 1] = order[_first_max_in_runs(-spread, first)]
+            I[:, 2], I[:, 3] = np.searchsorted(at, lo), np.searchsorted(at, hi)
+            power = np.zeros((len(lo), 3, 3))
             power[full] = np.add.reduceat((a[:, None] * rad)[:, :, None] * turned[:, None, :], first, axis=0)
-            rep = np.zeros(k, np.int64)
-            rep[full] = order[_first_max_in_runs(-spread, first)]
-            box_lo, box_hi = np.zeros((k, 3)), np.zeros((k, 3))
-            box_lo[full] = np.minimum.reduceat(corner_lo, first, axis=0)
-            box_hi[full] = np.maximum.reduceat(corner_hi, first, axis=0)
-            node["box_mid"], node["box_half"] = (box_lo + box_hi) / 2, (box_hi - box_lo) / 2
-            node |= {"centroid": C, "axis": axis, "cone": cone, "power": power, "rep": rep}
-            self.levels.append(node)
+            self.levels.append((F, I, power))
+
+
+# columns of a _LightTree level's floats and ints
+_F = {"centroid": slice(0, 3), "spread": 3, "radius": 4, "reach_min": 5, "reach_max": 6}
+_F |= {"box_mid": slice(7, 10), "box_half": slice(10, 13), "axis": slice(13, 16), "one_side": 16}
+_F["moment"] = slice(17, 23)
+_I = {"count": 0, "rep": 1, "s_lo": 2, "s_hi": 3}
+_PAIRS = (np.array([0, 1, 2, 0, 0, 1]), np.array([0, 1, 2, 1, 2, 2]))  # a symmetric 3 x 3's six entries
+
+
+def _second_order(moment: np.ndarray, u: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The relative correction (k,) of a node's one-point light for its extent: with u from the
+    point to the node's centroid, a the point's normal and b the node's axis on the point's side,
+    the light is A f(u) + (1/2) tr(S Hess f) for f = (a.u)(b.u)/|u|^4 and S the node's second moment
+    of area (k, 6: xx, yy, zz, xy, xz, yz), A f(u) the one-point rule; divided by A f(u):
+    a.S.b/((a.u)(b.u)) - 4 (u.S.a/(a.u) + u.S.b/(b.u))/|u|^2 - 2 tr S/|u|^2 + 12 u.S.u/|u|^4."""
+    S = np.empty((len(u), 3, 3))
+    S[:, _PAIRS[0], _PAIRS[1]] = moment
+    S[:, _PAIRS[1], _PAIRS[0]] = moment
+    Su = np.einsum("kij,kj->ki", S, u)
+    au, bu = np.einsum("kj,kj->k", a, u), np.einsum("kj,kj->k", b, u)
+    r2 = np.einsum("kj,kj->k", u, u)
+    aSb = np.einsum("ki,kij,kj->k", a, S, b)
+    tr = moment[:, 0] + moment[:, 1] + moment[:, 2]
+    return (
+        aSb / (au * bu)
+        - 4.0 * (np.einsum("kj,kj->k", Su, a) / au + np.einsum("kj,kj->k", Su, b) / bu) / r2
+        - 2.0 * tr / r2
+        + 12.0 * np.einsum("kj,kj->k", Su, u) / r2**2
+    )
 
 
 def _near_picked(H, rs, P, N, src: EmitterSamples, tree: _LightTree, g, rays, eps: float) -> int:
@@ -412,50 +453,55 @@ def _near_picked(H, rs, P, N, src: EmitterSamples, tree: _LightTree, g, rays, ep
 def _near_block(H, rs, P, N, src: EmitterSamples, tree: _LightTree, g, rays, eps, block) -> int:
     i, j = block, np.zeros(len(block), np.int64)
     found = []  # per level: points, irradiance (., 3), central triangle, samples' range
-    for node in tree.levels:
-        live = node["hi"][j] > node["lo"][j]
-        i, j = i[live], j[live]
+    for F, I, power in tree.levels:  # noqa: E741
+        ints = I[j]
+        live = ints[:, 0] > 0
+        if not live.all():
+            i, j, ints = i[live], j[live], ints[live]
         if len(i) == 0:
             break
-        v = node["centroid"][j] - P[i]
+        f, Pi, Ni = F[j], P[i], N[i]
+        v = f[:, _F["centroid"]] - Pi
         d = np.sqrt(np.einsum("ij,ij->i", v, v))
-        spread, radius = node["spread"][j], node["radius"][j]
-        near = d + spread < node["reach_min"][j]
-        far = d - spread >= node["reach_max"][j]
-        single = node["hi"][j] - node["lo"][j] == 1
-        rep = node["rep"][j]
-        omega = v / np.maximum(d, 1e-300)[:, None]
-        height = np.einsum("ij,ij->i", v, N[i])
+        spread, radius = f[:, _F["spread"]], f[:, _F["radius"]]
+        near = d + spread < f[:, _F["reach_min"]]
+        far = d - spread >= f[:, _F["reach_max"]]
+        single = ints[:, 0] == 1
+        rep = ints[:, 1]
+        height = np.einsum("ij,ij->i", v, Ni)
         # wholly above the point's horizon, or wholly under it (no light, and its samples gave none):
         # by the node's bounding ball or its box (a flat node parallel to the point's plane, a panel
         # under a ceiling, has a thin box); a single triangle's by its corners
-        box = np.einsum("ij,ij->i", node["box_mid"][j] - P[i], N[i])
-        half = np.einsum("ij,ij->i", node["box_half"][j], np.abs(N[i]))
+        box = np.einsum("ij,ij->i", f[:, _F["box_mid"]] - Pi, Ni)
+        half = np.einsum("ij,ij->i", f[:, _F["box_half"]], np.abs(Ni))
         above = (height > radius) | (box > half)
         under = (height < -radius) | (box < -half)
         one = np.flatnonzero(single & near)
-        h = np.einsum("kcj,kj->kc", tree.corners[rep[one]] - P[i[one]][:, None], N[i[one]])
+        h = np.einsum("kcj,kj->kc", tree.corners[rep[one]] - Pi[one][:, None], Ni[one])
         above[one], under[one] = h.min(axis=1) > 0, h.max(axis=1) <= 0
         far |= under
         near &= ~under
-        cone = node["cone"][j]
-        sees_one_side = (cone >= NEAR_CONE) & (
-            np.abs(np.einsum("ij,ij->i", omega, node["axis"][j])) >= np.sqrt(np.maximum(1.0 - cone**2, 0.0))
-        )
+        omega = v / np.maximum(d, 1e-300)[:, None]
+        sees_one_side = np.abs(np.einsum("ij,ij->i", omega, f[:, _F["axis"]])) >= f[:, _F["one_side"]]
         point = near & above & sees_one_side & (d > NEAR_EXACT * radius)
         contour = near & single & ~point
         E = np.zeros((len(i), 3))
         p = np.flatnonzero(point)
         cos_r = height[p] / np.maximum(d[p], 1e-300)
-        E[p] = (
-            cos_r[:, None] * np.abs(np.einsum("kcj,kj->kc", node["power"][j[p]], omega[p])) / d[p, None] ** 2
-        )
+        E[p] = cos_r[:, None] * np.abs(np.einsum("kcj,kj->kc", power[j[p]], omega[p])) / d[p, None] ** 2
+        if len(p):
+            axis = f[p, _F["axis"]]
+            axis *= np.where(np.einsum("ij,ij->i", axis, v[p]) < 0, -1.0, 1.0)[:, None]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                fix = _second_order(f[p, _F["moment"]], v[p], Ni[p], axis)
+            E[p] *= np.clip(np.nan_to_num(1.0 + fix, nan=1.0), 0.0, 2.0)[:, None]
         q = np.flatnonzero(contour)
-        E[q] = polygon_irradiance(P[i[q]], N[i[q]], tree.corners[rep[q]])[:, None] * tree.radiance[rep[q]]
-        done = point | contour
-        found.append((i[done], E[done], rep[done], node["s_lo"][j[done]], node["s_hi"][j[done]]))
-        down = ~far & ~done
-        i, j = np.repeat(i[down], 2), np.stack([2 * j[down], 2 * j[down] + 1], 1).ravel()
+        E[q] = polygon_irradiance(Pi[q], Ni[q], tree.corners[rep[q]])[:, None] * tree.radiance[rep[q]]
+        done = np.flatnonzero(point | contour)
+        found.append((i[done], E[done], rep[done], ints[done, 2], ints[done, 3]))
+        down = ~far
+        down[done] = False
+        i, j = np.repeat(i[down], 2), (2 * j[down, None] + [0, 1]).ravel()
     if not found:
         return 0
     i, E, rep, s_lo, s_hi = (np.concatenate(x) for x in zip(*found, strict=True))
