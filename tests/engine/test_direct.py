@@ -376,9 +376,9 @@ def test_a_far_node_of_the_light_tree_is_its_contour_integral(bend, monkeypatch)
     second moment of area, direct._second_order): random blobs of grid triangles, flat or bent (up to
     6 degrees between normals), at NEAR_EXACT to 1.5 NEAR_EXACT radii from random points whose
     horizon they lie over, against the sum of Lambert's contour integral over their triangles (the
-    reference's analytic.ff_point_to_polygon). Errors
-    in units of the blob's area over distance squared (its light face-on), as edge-on blobs, whose
-    light is faint, would make relative errors meaningless."""
+    reference's analytic.ff_point_to_polygon). Errors in units of the blob's area over distance
+    squared (its light face-on), as edge-on blobs, whose light is faint, would make relative errors
+    meaningless."""
     from ovrad_addon.surfaces import triangle_geometry
 
     monkeypatch.setattr(direct, "NEAR_EMITTER", 1e3)  # every triangle near: the tree alone
