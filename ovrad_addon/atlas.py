@@ -15,6 +15,7 @@ from . import clutter as clutter_mod
 from . import names
 from .contact import carry_over, contact_flags, contacts, split_at_contacts
 from .errors import OvradError
+from .geometry import ranges_flat, start_of
 from .placement import Placed, grid_angle, place_curved, place_planar, place_planar_small
 from .progress import StageCallback, report_stage
 from .rays import EmbreeRays, NumpyRays, make_rays
@@ -418,7 +419,7 @@ def _place_all(
         c = index.sheet_chart[small]
         side = index.sheet_side[small]
         owner = np.repeat(np.arange(len(small)), n_per[c])
-        tri = by_chart[_ranges_flat(start[c], n_per[c])]
+        tri = by_chart[ranges_flat(start[c], n_per[c])]
         corners = s.corners[tri]
         corners = np.where((side[owner] < 0)[:, None, None], corners[:, ::-1], corners)
         nrm = side[:, None] * np.add.reduceat(
@@ -478,16 +479,6 @@ def _empty_placed() -> Placed:
 
 
 SMALL_SHEET = 4  # planar sheets of at most this many triangles are placed together
-
-
-def start_of(counts: np.ndarray) -> np.ndarray:
-    """First position of each group in a flat array of groups of these sizes."""
-    return np.cumsum(counts) - counts
-
-
-def _ranges_flat(first: np.ndarray, counts: np.ndarray) -> np.ndarray:
-    """Concatenated ranges first[i] .. first[i] + counts[i] - 1."""
-    return np.repeat(first - start_of(counts), counts) + np.arange(int(counts.sum()))
 
 
 def _too_many(count: int, settings: AtlasSettings) -> OvradError:

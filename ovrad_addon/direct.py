@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .geometry import subtriangle_centroids
+from .geometry import ranges_flat, subtriangle_centroids
 from .lights import Lamp, lamp_irradiance, shadow_origin
 from .sky import Sky, sky_irradiance
 from .surfaces import Surfaces, triangle_geometry
@@ -364,8 +364,10 @@ class _LightTree:
             full = np.flatnonzero(hi > lo)
             first = lo[full]
             run = np.repeat(np.arange(len(full)), (hi - lo)[full])  # the full nodes tile the triangles
-            C = np.add.reduceat(cen * a[:, None], first, axis=0) / np.add.reduceat(a, first)[:, None]
-            spread = np.linalg.norm(cen - C[run], axis=1)
+            area_sum = np.add.reduceat(a, first)
+            C = np.add.reduceat(cen * a[:, None], first, axis=0) / area_sum[:, None]
+            off = cen - C[run]
+            spread = np.linalg.norm(off, axis=1)
             box_lo = np.minimum.reduceat(corner_lo, first, axis=0)
             box_hi = np.maximum.reduceat(corner_hi, first, axis=0)
             # the axis: the node's largest triangle's normal, then the area-weighted mean of the
@@ -379,9 +381,8 @@ class _LightTree:
             one_side = np.where(cone >= NEAR_CONE, np.sqrt(np.maximum(1.0 - cone**2, 0.0)), np.inf)
             # the node's second moment of area about C over its area (xx, yy, zz, xy, xz, yz): each
             # triangle's centroid offset, plus its own (1/12 of the sum of its corners' offsets squared)
-            off = cen - C[run]
             moment = a[:, None] * (off[:, _PAIRS[0]] * off[:, _PAIRS[1]] + own)
-            moment = np.add.reduceat(moment, first, axis=0) / np.add.reduceat(a, first)[:, None]
+            moment = np.add.reduceat(moment, first, axis=0) / area_sum[:, None]
             F = np.zeros((len(lo), 23))
             F[full] = np.column_stack(
                 [
@@ -531,9 +532,7 @@ def _near_block(H, rs, P, N, src: EmitterSamples, tree: _LightTree, g, rays, eps
     many = s_hi - s_lo
     if many.sum():
         row = np.repeat(i, many)
-        sample = tree.sample_order[
-            np.arange(int(many.sum())) + np.repeat(s_lo - np.r_[0, np.cumsum(many)[:-1]], many)
-        ]
+        sample = tree.sample_order[ranges_flat(s_lo, many)]
         np.add.at(H, rs[row], -g[row, sample][:, None] * src.radiance[sample])
     return cast
 

@@ -1,5 +1,6 @@
 """Small geometric rules shared across the engine: tangent frames around unit normals (patch
-placement, direction sampling) and a triangle's midpoint rule (emitter samples, texture means)."""
+placement, direction sampling) and a triangle's midpoint rule (emitter samples, texture means); and
+index helpers over flat arrays of groups (unique rows, group starts, concatenated ranges)."""
 
 from __future__ import annotations
 
@@ -61,3 +62,13 @@ def _flat_inverse(out, return_index: bool, return_inverse: bool):
     k = 1 + int(return_index)
     out[k] = np.asarray(out[k]).ravel()
     return tuple(out)
+
+
+def start_of(counts: np.ndarray) -> np.ndarray:
+    """First position of each group in a flat array of groups of these sizes."""
+    return np.cumsum(counts) - counts
+
+
+def ranges_flat(first: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Concatenated ranges first[i] .. first[i] + counts[i] - 1."""
+    return np.repeat(first - start_of(counts), counts) + np.arange(int(counts.sum()))

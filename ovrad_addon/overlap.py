@@ -18,7 +18,7 @@ from scipy.sparse import coo_matrix, csr_matrix
 from scipy.spatial import cKDTree
 
 from .contact import contacts, planar_patches, seen_members, visible
-from .geometry import unique_rows
+from .geometry import ranges_flat, unique_rows
 from .names import SHAPE_BALL, SHAPE_DISK, SHAPE_SQUARE
 from .parallel import WORKERS, threaded
 from .support import alpha_from_pairs, pair_beta
@@ -390,11 +390,7 @@ def border_crossings(atlas, index, ids, theta, rmax, kk, tt) -> tuple[np.ndarray
     chart = index.sheet_chart[atlas.sheet[g]]
     count = start[chart + 1] - start[chart]
     owner = np.repeat(np.arange(len(patches)), count)
-    edge = (
-        np.arange(int(count.sum()))
-        - np.repeat(np.cumsum(count) - count, count)
-        + np.repeat(start[chart], count)
-    )
+    edge = ranges_flat(start[chart], count)
     c = atlas.centers[g][owner]
     a, d = pa[edge] - c, pb[edge] - pa[edge]
     s = np.clip(-np.einsum("ij,ij->i", a, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-300), 0.0, 1.0)
@@ -412,8 +408,7 @@ def border_crossings(atlas, index, ids, theta, rmax, kk, tt) -> tuple[np.ndarray
     first = np.searchsorted(owner, np.arange(len(patches)))
     n_pairs = per[slot]
     ray = np.repeat(np.arange(len(kk)), n_pairs)
-    seg = np.arange(int(n_pairs.sum())) - np.repeat(np.cumsum(n_pairs) - n_pairs, n_pairs)
-    seg = seg + np.repeat(first[slot], n_pairs)
+    seg = ranges_flat(first[slot], n_pairs)
     th = theta[kk[ray], tt[ray]]
     ux, uy = np.cos(th), np.sin(th)
     # centre + rho u = a + s d: rho = (a x d) / (u x d), s = (a x u) / (u x d)
