@@ -45,6 +45,7 @@ class DirectLight:
     sky: Sky | None = None
     sky_samples: int = 1024
     sky_patches: np.ndarray | None = None
+    emitter_samples: int = 0  # the emitters' samples per point when not `samples` (0: samples)
 
 
 def triangle_normals(surfaces: Surfaces, triangles: np.ndarray) -> np.ndarray:
@@ -305,6 +306,13 @@ def _emitter_rule(surfaces: Surfaces, emitters: np.ndarray, samples: int, scale:
     return src, near
 
 
+def picked(surfaces: Surfaces, emitters: np.ndarray, samples: int, scale: float = 1.0) -> bool:
+    """Whether `samples` emitter samples are picked on the power of more emitting triangles than
+    samples (the light tree then takes the near field of every point within NEAR_EMITTER of their
+    spacings: fewer samples spread them wider and widen that near field)."""
+    return _emitter_rule(surfaces, emitters, samples, scale)[0].pick is not None
+
+
 def _first_max_in_runs(values: np.ndarray, first: np.ndarray) -> np.ndarray:
     """Index of the first largest value in each run of `values`, runs starting at `first` (sorted,
     first[0] = 0) and tiling the array."""
@@ -559,9 +567,8 @@ def direct_irradiance(
             H[sl] += h
             cast += n
     if light.emitters is not None and np.any(light.emitters):
-        h, n = emitter_irradiance(
-            surfaces, rays, light.emitters, pts, nrm, light.samples, light.emission_scale
-        )
+        samples = light.emitter_samples or light.samples
+        h, n = emitter_irradiance(surfaces, rays, light.emitters, pts, nrm, samples, light.emission_scale)
         H += h
         cast += n
     if light.sky is not None and light.sky.emits:

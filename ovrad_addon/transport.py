@@ -21,7 +21,7 @@ from scipy.sparse import coo_matrix, csc_matrix, csr_matrix
 
 from .clusters import Clusters, pooled_fraction
 from .contact import contacts
-from .geometry import tangent_frame
+from .geometry import start_of, tangent_frame
 from .overlap import alpha_at, ray_hits, support_points
 from .parallel import WORKERS, threaded
 
@@ -46,6 +46,33 @@ def receiver_points(atlas, index, q: int = 4, rings: int = 1) -> ReceiverPoints:
     coarse = np.bincount(quad.owner, weights=quad.weights, minlength=len(atlas))
     w = quad.weights * (atlas.support_area / np.maximum(coarse, 1e-300))[quad.owner]
     return ReceiverPoints(quad.owner, quad.points, quad.normals, w, quad.triangle)
+
+
+THIN_MIN = 2  # receiver points a thinned rule keeps per patch at least (thinned_points)
+
+
+def thinned_points(points: ReceiverPoints, keep: float) -> ReceiverPoints:
+    """About `keep` (0, 1] of the receiver points, at least THIN_MIN per patch (or all it has):
+    an even number k of a patch's c points, every (c / k)-th in the order of its rule. The rule
+    goes round the patch's centre ray by ray, so for an even c the kept points come in pairs c / 2
+    apart, on opposite rays: their mean stays at the centre, and a light that varies linearly
+    over the patch is integrated as exactly as by all the points. Weights rescaled so that each
+    patch's still sum to its support area. The first shot of a large atlas under its ray budget
+    (pipeline.first_shot_points)."""
+    if keep >= 1.0 or len(points.owner) == 0:
+        return points
+    order = np.argsort(points.owner, kind="stable")
+    counts = np.bincount(points.owner)
+    kept = np.minimum(counts, np.maximum(THIN_MIN, 2 * np.ceil(counts * keep / 2).astype(np.int64)))
+    patch = np.repeat(np.arange(len(counts)), kept)
+    j = np.arange(int(kept.sum())) - np.repeat(start_of(kept), kept)
+    picked = order[start_of(counts)[patch] + (j * counts[patch]) // np.maximum(kept[patch], 1)]
+    n = len(counts)
+    total = np.bincount(points.owner, weights=points.weight, minlength=n)
+    part = np.bincount(points.owner[picked], weights=points.weight[picked], minlength=n)
+    owner, at = points.owner[picked], picked
+    weight = points.weight[at] * (total / np.maximum(part, 1e-300))[owner]
+    return ReceiverPoints(owner, points.points[at], points.normals[at], weight, points.triangle[at])
 
 
 @dataclass(frozen=True)
@@ -110,9 +137,12 @@ class Transport:
             out += self.links @ (self.push @ B)
         return self.rho * out
 
-    def test(self, irradiance: np.ndarray, reflectance: np.ndarray) -> np.ndarray:
-        """Light reflected into each test region from an irradiance (m, 3) at the receiver points."""
-        p = self.points
+    def test(
+        self, irradiance: np.ndarray, reflectance: np.ndarray, points: ReceiverPoints | None = None
+    ) -> np.ndarray:
+        """Light reflected into each test region from an irradiance (m, 3) at the receiver points
+        (or at `points`, a rule of its own on the same patches: thinned_points)."""
+        p = self.points if points is None else points
         out = np.zeros((len(self.rho), irradiance.shape[1]))
         np.add.at(out, p.owner, reflectance * irradiance * p.weight[:, None])
         return out

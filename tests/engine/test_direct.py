@@ -1,6 +1,8 @@
 """Direct light at bake points (direct.py, pipeline.radiance_at with the first shot split off)
 against closed forms: emitter sampling, shadow rays from concave edges, sharp shadows."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from reference import analytic
@@ -8,10 +10,18 @@ from reference import analytic
 import scenes
 from ovrad_addon import direct
 from ovrad_addon.atlas import build_atlas
-from ovrad_addon.direct import emitter_irradiance, polygon_irradiance, triangle_normals
+from ovrad_addon.direct import DirectLight, emitter_irradiance, polygon_irradiance, triangle_normals
 from ovrad_addon.geometry import subtriangle_centroids
 from ovrad_addon.lights import Lamp, lamp_irradiance
-from ovrad_addon.pipeline import SolveSettings, direct_light, irradiance_at, prepare, radiance_at, solve
+from ovrad_addon.pipeline import (
+    SolveSettings,
+    direct_light,
+    emitter_samples,
+    irradiance_at,
+    prepare,
+    radiance_at,
+    solve,
+)
 from ovrad_addon.rays import make_rays
 from ovrad_addon.settings import AtlasSettings
 from ovrad_addon.surfaces import Surfaces
@@ -199,6 +209,22 @@ def test_an_emitter_of_more_triangles_than_samples_is_picked_by_power():
         assert cast == 200 * min(samples, len(pt))
         assert np.abs(H[:, 0] / exact - 1.0).max() < worst
         assert abs(H[:, 0].sum() / exact.sum() - 1.0) < 2e-3
+
+
+def test_the_first_shots_budget_keeps_picked_emitter_samples():
+    """Under a binding shadow-ray budget the first shot takes fewer samples per point, but not
+    for emitters whose samples are picked on power (more triangles than samples): fewer picks
+    stand farther apart and widen the light tree's near field, which casts the rays back."""
+    panel = {}
+    for n in (1, 20):  # 2 triangles (each gets its own samples), 800 triangles (picked)
+        pv, pt = scenes.plane(size=1.0, n=n, z=0.5)
+        panel[n] = Surfaces.from_arrays(pv, pt, emission=[1.0, 1.0, 1.0])
+    light = DirectLight(emitters=np.ones(len(panel[20].triangles), bool))
+    assert direct.picked(panel[20], light.emitters, 16) and not direct.picked(panel[20], light.emitters, 1024)
+    assert emitter_samples(panel[20], light, 16, 4) == 16
+    assert emitter_samples(panel[1], replace(light, emitters=np.ones(2, bool)), 16, 4) == 4
+    assert emitter_samples(panel[20], replace(light, emitters=None), 16, 4) == 4
+    assert emitter_samples(panel[20], light, 16, 16) == 16
 
 
 @pytest.mark.parametrize("side", [1, -1])

@@ -14,7 +14,7 @@ from ovrad_addon.pipeline import within_budget
 from ovrad_addon.settings import AtlasSettings
 from ovrad_addon.solver import shooters, solve_direct, solve_progressive
 from ovrad_addon.surfaces import Surfaces
-from ovrad_addon.transport import capped, gather_transport
+from ovrad_addon.transport import capped, gather_transport, thinned_points
 
 
 def prepare(surfaces, **settings):
@@ -211,6 +211,34 @@ def test_budget_helpers():
     assert within_budget(2, 1000, 1_000, 4) == 2  # the floor never raises what was asked
     # an area lamp's rule: 8 x 8 points at the solve's 16 samples and the bakes' 64, fewer under a budget
     assert area_side(16) == area_side(64) == 8 and area_side(4) == 4 and area_side(1) == 2
+
+
+@pytest.mark.parametrize("beta", ["box", "smooth"])  # one ring of 16 points; 16 rays of 2 points
+def test_thinned_receiver_points_keep_each_patchs_area_and_centre(beta):
+    s = uniform(scenes.cube(inward=True), 0.5)
+    atlas, index, C, T, E = prepare(s, patch_count=200, beta=beta)
+    full = T.points
+    n = len(atlas)
+    counts = np.bincount(full.owner, minlength=n)
+    for keep in (0.5, 0.2, 0.1, 1e-6):
+        thin = thinned_points(full, keep)
+        got = np.bincount(thin.owner, minlength=n)
+        want = np.minimum(counts, np.maximum(2, 2 * np.ceil(counts * keep / 2)))
+        np.testing.assert_array_equal(got, want)
+        # a subset of the rule's points, and every patch's weights still sum to its support area
+        rows = {tuple(p) for p in full.points.round(12)}
+        assert all(tuple(p) in rows for p in thin.points.round(12))
+        area = np.bincount(thin.owner, weights=thin.weight, minlength=n)
+        np.testing.assert_allclose(area, atlas.support_area)
+        # on a patch whose support is whole, the kept points' weighted mean is its centre, as the
+        # rule's is (a pair of opposite rays each); the modal count of points marks such patches
+        whole = np.flatnonzero(counts == np.bincount(counts).argmax())
+        centre = np.zeros((n, 3))
+        np.add.at(centre, thin.owner, thin.points * thin.weight[:, None])
+        centre /= atlas.support_area[:, None]
+        spread = np.linalg.norm(centre[whole] - atlas.centers[whole], axis=1) / atlas.radii[whole]
+        assert spread.max() < 1e-9
+    assert thinned_points(full, 1.0) is full
 
 
 @pytest.mark.parametrize("far", [0.0, 0.5])  # alpha at every hit; far hits through clusters too
