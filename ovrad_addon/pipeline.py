@@ -21,6 +21,7 @@ from .errors import OvradError
 from .gather import (
     MAX_RAYS,
     NEAR_LIGHT_SAMPLES,
+    NEAR_PICKED_SAMPLES,
     NEAR_SKY_SAMPLES,
     NearField,
     gather_axis,
@@ -523,11 +524,12 @@ def first_shot_points(points: ReceiverPoints, light: DirectLight, settings: Solv
 
 
 def emitter_samples(surfaces: Surfaces, light: DirectLight, asked: int, budgeted: int) -> int:
-    """The emitters' samples per receiver point for the first shot: the budget's `budgeted`, but
-    `asked` where they are picked on the power of more triangles than samples (direct.picked):
-    there fewer samples stand farther apart and the light tree's near field around each point
-    grows with them, which costs more rays and time than it saves (20 000 points of the large
-    interior, 4 / 8 / 16 samples: 27 / 20 / 17 rays per point, 3.3 / 1.8 / 0.9 s)."""
+    """The emitters' samples per point (the first shot's receiver points, a gather's near hits):
+    the budget's `budgeted`, but `asked` where they are picked on the power of more triangles than
+    samples (direct.picked): there fewer samples stand farther apart and the light tree's near
+    field around each point grows with them, which costs more rays and time than it saves (20 000
+    points of the large interior, 4 / 8 / 16 samples: 27 / 20 / 17 rays per point, 3.3 / 1.8 /
+    0.9 s)."""
     if budgeted >= asked or light.emitters is None or not np.any(light.emitters):
         return budgeted
     if picked(surfaces, light.emitters, asked, light.emission_scale):
@@ -687,9 +689,13 @@ def _at_points(
         else:
             near = None
             if light.near_field:
+                few = min(light.samples, NEAR_LIGHT_SAMPLES)
                 near_light = replace(
                     light,
-                    samples=min(light.samples, NEAR_LIGHT_SAMPLES),
+                    samples=few,
+                    emitter_samples=emitter_samples(
+                        problem.surfaces, light, min(light.samples, NEAR_PICKED_SAMPLES), few
+                    ),
                     sky_samples=min(light.sky_samples, NEAR_SKY_SAMPLES),
                 )
                 near = NearField(near_light, radiosity - first_shot - coeffs, coeffs - own, sky_seen=seen)

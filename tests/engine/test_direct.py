@@ -8,7 +8,7 @@ import pytest
 from reference import analytic
 
 import scenes
-from ovrad_addon import direct
+from ovrad_addon import direct, pipeline
 from ovrad_addon.atlas import build_atlas
 from ovrad_addon.direct import DirectLight, emitter_irradiance, polygon_irradiance, triangle_normals
 from ovrad_addon.geometry import subtriangle_centroids
@@ -225,6 +225,35 @@ def test_the_first_shots_budget_keeps_picked_emitter_samples():
     assert emitter_samples(panel[1], replace(light, emitters=np.ones(2, bool)), 16, 4) == 4
     assert emitter_samples(panel[20], replace(light, emitters=None), 16, 4) == 4
     assert emitter_samples(panel[20], light, 16, 16) == 16
+
+
+@pytest.mark.parametrize("cuts, want", [(1, 8), (20, 16)])  # a quad: 2 triangles; 800 (picked)
+def test_a_gathers_near_hits_keep_16_picked_emitter_samples(cuts, want, monkeypatch):
+    """Near gather hits take 8 emitter samples (gather.NEAR_LIGHT_SAMPLES), but 16 of an emitter
+    of many triangles, whose samples are picked on power (gather.NEAR_PICKED_SAMPLES)."""
+    ev, et = scenes.plane(size=1.0, n=cuts, z=0.5)
+    fv, ft = scenes.plane(size=3.0, n=2)
+    v = np.vstack([ev[:, [0, 1, 2]] - [0.5, 0.5, 0.0], fv - [1.5, 1.5, 0.0]])
+    t = np.vstack([et[:, ::-1], ft + len(ev)])  # the panel faces down, the floor up
+    emission = np.zeros((len(t), 3))
+    emission[: len(et)] = 4.0
+    s = Surfaces.from_arrays(v, t, reflectance=[0.5] * 3, emission=emission)
+    problem = prepare(s, build_atlas(s, AtlasSettings(patch_count=300)))
+    state = solve(problem)
+    seen = []
+    original = pipeline.NearField
+
+    def recording(light, *args, **kwargs):
+        seen.append(light)
+        return original(light, *args, **kwargs)
+
+    monkeypatch.setattr(pipeline, "NearField", recording)
+    pts, tri = scenes.sample_surface(s, 50, seed=2)
+    floor = tri >= len(et)
+    light = direct_light(problem, (), SolveSettings())
+    radiance_at(problem, state.radiosity, pts[floor], tri[floor], 1, state.first_shot, light)
+    assert len(seen) == 1 and seen[0].samples == 8
+    assert (seen[0].emitter_samples or seen[0].samples) == want
 
 
 @pytest.mark.parametrize("side", [1, -1])
