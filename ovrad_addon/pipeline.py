@@ -504,13 +504,12 @@ def within_budget(samples: int, points: int, budget: int, floor: int) -> int:
 
 def first_shot_points(points: ReceiverPoints, light: DirectLight, settings: SolveSettings, budget: int):
     """The receiver points the first shot computes its direct light at: all of them, or under the
-    shadow-ray budget (0: none) a coarser rule on every patch (transport.thinned_points, at least
-    one point per patch) so that each keeps its full samples: fewer points rather than fewer
-    samples. The first shot's light feeds the bounces only (a bake computes its own direct light
-    at its points), and at the patch counts where the budget binds a patch is a few centimetres
-    wide: its light varies little over it, while samples cut to the floor widen a picked
-    emitter's near field around every point (emitter_samples) and coarsen lamps' and the sky's
-    rules at every point."""
+    shadow-ray budget (0: none) a coarser rule on every patch (transport.thinned_points: pairs of
+    points on opposite rule rays, at least one pair) so that each keeps its full samples: fewer
+    points rather than fewer samples. The first shot's light feeds the bounces only (a bake
+    computes its own direct light at its points), the pairs integrate a light varying linearly
+    over a patch exactly, while samples cut toward the floor widen a picked emitter's near field
+    round every point (emitter_samples) and coarsen lamps' and the sky's rules at every point."""
     per_point = 0
     if light.lamps or (light.emitters is not None and np.any(light.emitters)):
         area = any(lamp.kind == "AREA" for lamp in light.lamps)

@@ -66,11 +66,10 @@ def thinned_points(points: ReceiverPoints, keep: float) -> ReceiverPoints:
     kept = np.minimum(counts, np.maximum(THIN_MIN, 2 * np.ceil(counts * keep / 2).astype(np.int64)))
     patch = np.repeat(np.arange(len(counts)), kept)
     j = np.arange(int(kept.sum())) - np.repeat(start_of(kept), kept)
-    picked = order[start_of(counts)[patch] + (j * counts[patch]) // np.maximum(kept[patch], 1)]
-    n = len(counts)
-    total = np.bincount(points.owner, weights=points.weight, minlength=n)
-    part = np.bincount(points.owner[picked], weights=points.weight[picked], minlength=n)
-    owner, at = points.owner[picked], picked
+    at = order[start_of(counts)[patch] + (j * counts[patch]) // np.maximum(kept[patch], 1)]
+    owner = points.owner[at]
+    total = np.bincount(points.owner, weights=points.weight, minlength=len(counts))
+    part = np.bincount(owner, weights=points.weight[at], minlength=len(counts))
     weight = points.weight[at] * (total / np.maximum(part, 1e-300))[owner]
     return ReceiverPoints(owner, points.points[at], points.normals[at], weight, points.triangle[at])
 
