@@ -519,11 +519,19 @@ def first_shot_points(
     world: 5.29 -> 5.67 % at every vertex; a share of 0.25, 5.36 %)."""
     m = len(points.owner)
     per_point = settings.light_samples
-    if budget <= 0 or m * per_point <= budget or light.emitters is None or not np.any(light.emitters):
-        return points
-    if not picked(surfaces, light.emitters, per_point, light.emission_scale):
+    if budget <= 0 or m * per_point <= budget or not picked_emitters(surfaces, light, per_point):
         return points
     return thinned_points(points, max(MIN_FIRST_SHOT_SHARE, budget / (m * per_point)))
+
+
+def picked_emitters(surfaces: Surfaces, light: DirectLight, samples: int) -> bool:
+    """light has emitters, and `samples` of them are picked on power (direct.picked)."""
+    emitters = light.emitters
+    return (
+        emitters is not None
+        and bool(np.any(emitters))
+        and picked(surfaces, emitters, samples, light.emission_scale)
+    )
 
 
 def emitter_samples(surfaces: Surfaces, light: DirectLight, asked: int, budgeted: int) -> int:
@@ -533,11 +541,7 @@ def emitter_samples(surfaces: Surfaces, light: DirectLight, asked: int, budgeted
     field around each point grows with them, which costs more rays and time than it saves (20 000
     points of the large interior, 4 / 8 / 16 samples: 27 / 20 / 17 rays per point, 3.3 / 1.8 /
     0.9 s)."""
-    if budgeted >= asked or light.emitters is None or not np.any(light.emitters):
-        return budgeted
-    if picked(surfaces, light.emitters, asked, light.emission_scale):
-        return asked
-    return budgeted
+    return asked if budgeted < asked and picked_emitters(surfaces, light, asked) else budgeted
 
 
 def solve(
@@ -553,8 +557,7 @@ def solve(
 
     The first shot sends the lamps', the emitters' and the sky's light straight to the receiver
     points (shadow rays; a coarser rule of them under the ray budget for emitters picked on power:
-    first_shot_points), which is
-    far more accurate for small bright sources than hemisphere rays.
+    first_shot_points), which is far more accurate for small bright sources than hemisphere rays.
     The sky enters only there: transport rays that escape the scene still bring nothing.
     Radiosity B (n, 3) is exitance in W/m^2; radiance is B / pi. progress receives a
     solver.SolveProgress (with the state) after each step; returning False cancels.

@@ -66,7 +66,7 @@ def thinned_points(points: ReceiverPoints, keep: float) -> ReceiverPoints:
     kept = np.minimum(counts, np.maximum(THIN_MIN, 2 * np.ceil(counts * keep / 2).astype(np.int64)))
     patch = np.repeat(np.arange(len(counts)), kept)
     j = np.arange(int(kept.sum())) - np.repeat(start_of(kept), kept)
-    at = order[start_of(counts)[patch] + (j * counts[patch]) // np.maximum(kept[patch], 1)]
+    at = order[start_of(counts)[patch] + (j * counts[patch]) // kept[patch]]  # kept > 0 where repeated
     owner = points.owner[at]
     total = np.bincount(points.owner, weights=points.weight, minlength=len(counts))
     part = np.bincount(owner, weights=points.weight[at], minlength=len(counts))

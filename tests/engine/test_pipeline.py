@@ -124,8 +124,8 @@ def test_every_lamp_lights_a_plane_as_its_closed_form(lit_plane, kind, budget, m
     got, state = irradiance(problem, lamp, pts)
     want = exact(pts)
     # Baked light is a blend of patch averages (patches about 0.1 m here): measured 1.6-2.6 %
-    # RMS for lamps 0.8-1.5 m above the plane, exact for the uniform sun; with the tight budget
-    # the same.
+    # RMS for lamps 0.8-1.5 m above the plane, exact for the uniform sun; the tight budget is held
+    # to the same bound.
     assert np.sqrt(np.mean((got - want) ** 2)) / np.sqrt(np.mean(want**2)) < 0.03
     # a lone plane reflects to nowhere: radiance is rho/pi times irradiance, no more
     L = radiance_at(problem, state.radiosity, pts, np.zeros(len(pts), int), 1)[:, 0]
