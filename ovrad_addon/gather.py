@@ -321,12 +321,15 @@ class CornerCache:
                 h = self.alpha_size[index.sheet_of(tri, np.full(T, 1 - 2 * back))]
                 n = np.ceil(self.size / h)  # a side without patches (h = inf): one cell
                 divisions[back] = np.where(n <= MAX_DIVISIONS, np.maximum(n, 1), 0)
-        self.patch_nodes = LatticeValues(divisions, 8, np.float32, self._values)
+        self.frames = TriangleFrames(c)
+        self.patch_nodes = LatticeValues(self.frames, divisions, 8, np.float32, self._values)
         # the spacing of the gather's rays where they land goes as 1 / sqrt(rays)
         self.light_size = 0.0 if near is None else near.corner_size * np.sqrt(256.0 / max(rays, 1))
         self.light_nodes = None
         if near is not None:
-            self.light_nodes = LatticeValues(np.ones((2, T), np.int64), 3, np.float64, self._light)
+            self.light_nodes = LatticeValues(
+                self.frames, np.ones((2, T), np.int64), 3, np.float64, self._light
+            )
 
     def _values(self, tri, side, pts) -> np.ndarray:
         pts = inside(self.problem.index.surfaces, pts, tri)
@@ -345,8 +348,7 @@ class CornerCache:
 
     def light_at(self, points, triangles, sides) -> np.ndarray:
         """Near-field direct irradiance (k, 3) at points on triangles (k,), seen from sides (k,)."""
-        corners = self.problem.index.surfaces.corners[triangles]
-        return self.light_nodes.at(corners, points, triangles, sides)
+        return self.light_nodes.at(points, triangles, sides)
 
     def values_at(self, points, triangles, sides, t=None) -> HitValues:
         """HitValues at hits: from the lattice where their side has one, from alpha at the others
@@ -357,8 +359,7 @@ class CornerCache:
         out = np.empty((len(points), 8))
         s = np.flatnonzero(n > 0)
         if len(s):
-            corners = problem.index.surfaces.corners[triangles[s]]
-            out[s] = self.patch_nodes.at(corners, points[s], triangles[s], sides[s])
+            out[s] = self.patch_nodes.at(points[s], triangles[s], sides[s])
         exact = n == 0
         if t is not None:
             exact |= (n > 1) & (t < LATTICE_REACH * out[:, 6])
@@ -385,7 +386,8 @@ class LatticeValues:
     and since a node's value depends on the node only, they agree.
     """
 
-    def __init__(self, divisions: np.ndarray, width: int, dtype, fill):
+    def __init__(self, frames: TriangleFrames, divisions: np.ndarray, width: int, dtype, fill):
+        self.frames = frames
         self.divisions = np.asarray(divisions, np.int64)
         self.base = np.full(self.divisions.shape, -1, np.int64)  # a side's first slot, once asked
         self.slot = np.full(1024, -1, np.int64)  # node -> row; both grown by doubling
@@ -395,32 +397,36 @@ class LatticeValues:
         self.fill = fill
         self.lock = threading.Lock()
 
-    def at(self, corners, points, triangles, sides) -> np.ndarray:
-        """Interpolated values (k, width) at points (k, 3) on triangles (k,) (corners (k, 3, 3)),
-        seen from sides (k,) +-1."""
+    def at(self, points, triangles, sides) -> np.ndarray:
+        """Interpolated values (k, width) at points (k, 3) on triangles (k,), seen from sides (k,) +-1.
+
+        A point at lattice coordinates (u, v) = n x its barycentric weights of the second and third
+        corners lies in the cell of node (i0, j0) = floor(u, v): the lower cell (i0, j0), (i0 + 1, j0),
+        (i0, j0 + 1) when fu + fv <= 1, else the upper one, which shares the last two nodes and swaps
+        the first for (i0 + 1, j0 + 1) (the last row of cells has no upper one)."""
         back = (np.asarray(sides) < 0).astype(np.int64)
         n = self.divisions[back, triangles]
-        w = barycentric(corners, points)
-        u, v = w[:, 1] * n, w[:, 2] * n
+        vw = self.frames.coordinates(triangles, points)
+        u, v = vw[:, 0] * n, vw[:, 1] * n
         i0 = np.clip(np.floor(u), 0, n - 1).astype(np.int64)
         j0 = np.clip(np.floor(v), 0, n - 1 - i0).astype(np.int64)
         fu, fv = u - i0, v - j0
-        upper = (fu + fv > 1.0) & (i0 + j0 <= n - 2)  # (the last row of cells has no upper one)
-        # nodes of the lower cell: (i0, j0), (i0 + 1, j0), (i0, j0 + 1);
-        # of the upper one: (i0 + 1, j0 + 1), (i0, j0 + 1), (i0 + 1, j0)
-        ni = i0[:, None] + np.where(upper[:, None], [1, 0, 1], [0, 1, 0])
-        nj = j0[:, None] + np.where(upper[:, None], [1, 1, 0], [0, 0, 1])
-        weight = np.where(
-            upper[:, None],
-            np.column_stack([fu + fv - 1.0, 1.0 - fu, 1.0 - fv]),
-            np.column_stack([1.0 - fu - fv, fu, fv]),
-        )
-        weight = np.clip(weight, 0.0, 1.0)
+        upper = (fu + fv > 1.0) & (i0 + j0 <= n - 2)
+        weight = np.empty((len(n), 3))
+        weight[:, 0] = np.where(upper, fu + fv - 1.0, 1.0 - fu - fv)
+        weight[:, 1] = np.where(upper, 1.0 - fv, fu)
+        weight[:, 2] = np.where(upper, 1.0 - fu, fv)
+        np.clip(weight, 0.0, 1.0, out=weight)
         weight /= np.maximum(weight.sum(axis=1, keepdims=True), 1e-300)
         # node (i, j) of a lattice of n: rows i' < i hold n + 1 - i' nodes each
-        node = self._base(back, triangles)[:, None] + ni * (2 * n[:, None] + 3 - ni) // 2 + nj
-        rows = self._rows(node, triangles, sides, corners, ni, nj, n)
-        return np.einsum("kc,kcj->kj", weight, rows)
+        base = self._base(back, triangles)
+        first = base + i0 * (2 * n + 3 - i0) // 2 + j0  # (i0, j0)
+        node = np.empty((len(n), 3), np.int64)
+        node[:, 1] = base + (i0 + 1) * (2 * n + 2 - i0) // 2 + j0  # (i0 + 1, j0)
+        node[:, 2] = first + 1  # (i0, j0 + 1)
+        node[:, 0] = np.where(upper, node[:, 1] + 1, first)  # (i0 + 1, j0 + 1) or (i0, j0)
+        rows = self._rows(node, triangles, sides, i0, j0, upper, n)
+        return np.matmul(weight[:, None, :], rows)[:, 0]
 
     def _base(self, back, triangles) -> np.ndarray:
         """First slot of each side's nodes (k,), given out when a side is first asked: only the
@@ -443,18 +449,21 @@ class LatticeValues:
             base = self.base[back, triangles]
         return base
 
-    def _rows(self, node, triangles, sides, corners, ni, nj, n) -> np.ndarray:
+    def _rows(self, node, triangles, sides, i0, j0, upper, n) -> np.ndarray:
         slot = self.slot[node]
         need = slot < 0
         if np.any(need):
             new, first = np.unique(node[need], return_index=True)
             k, c = np.nonzero(need)
             k, c = k[first], c[first]
+            # the nodes' (i, j), in at()'s column order
+            ni = i0[k] + np.where(c == 0, upper[k], c == 1)
+            nj = j0[k] + np.where(c == 0, upper[k], c == 2)
             nn = n[k].astype(np.float64)
-            a, b = ni[k, c] / nn, nj[k, c] / nn
+            a, b = ni / nn, nj / nn
             w = np.column_stack([1.0 - a - b, a, b])
-            w[:, 0] = np.where(ni[k, c] + nj[k, c] == n[k], 0.0, w[:, 0])  # exact on the far edge
-            pts = np.einsum("kc,kcj->kj", w, corners[k])
+            w[:, 0] = np.where(ni + nj == n[k], 0.0, w[:, 0])  # exact on the far edge
+            pts = np.einsum("kc,kcj->kj", w, self.frames.corners[triangles[k]])
             vals = self.fill(triangles[k], np.where(np.asarray(sides)[k] < 0, -1, 1), pts)
             with self.lock:
                 fresh = self.slot[new] < 0
@@ -468,7 +477,7 @@ class LatticeValues:
                 self.count = count + len(new)
                 self.slot[new] = count + np.arange(len(new))  # after the rows
             slot = self.slot[node]
-        return self.rows[slot].astype(np.float64, copy=False)  # (fancy indexing already copied)
+        return np.take(self.rows, slot, axis=0).astype(np.float64, copy=False)
 
 
 def _patch_values(problem, alpha, values, near: NearField | None) -> np.ndarray:
@@ -484,23 +493,45 @@ def _patch_values(problem, alpha, values, near: NearField | None) -> np.ndarray:
     return out
 
 
+class TriangleFrames:
+    """Barycentric coordinates on fixed triangles (T, 3, 3), with what depends on the triangle alone
+    computed once: a point's weights of the second and third corners are two dot products of its
+    offset from the first corner. A degenerate triangle gives a third to each corner."""
+
+    def __init__(self, corners: np.ndarray):
+        self.corners = corners = np.asarray(corners, np.float64)
+        a = corners[:, 0]
+        e1, e2 = corners[:, 1] - a, corners[:, 2] - a
+        d11, d12, d22 = (np.einsum("kj,kj->k", x, y) for x, y in ((e1, e1), (e1, e2), (e2, e2)))
+        den = d11 * d22 - d12 * d12
+        self.ok = den > 1e-12 * np.maximum(d11 * d22, 1e-300)
+        safe = np.where(self.ok, den, 1.0)[:, None]
+        # v = (d22 p.e1 - d12 p.e2) / den, w = (d11 p.e2 - d12 p.e1) / den for p = point - a
+        self.rows = np.stack(
+            [(d22[:, None] * e1 - d12[:, None] * e2) / safe, (d11[:, None] * e2 - d12[:, None] * e1) / safe],
+            axis=1,
+        )
+        self.rows[~self.ok] = 0.0
+
+    def coordinates(self, triangles, points) -> np.ndarray:
+        """(k, 2) weights of the second and third corners of points (k, 3) on triangles (k,),
+        clipped to the triangle (the three weights at least 0, summing to 1)."""
+        d = np.asarray(points, np.float64) - self.corners[triangles, 0]
+        vw = np.matmul(self.rows[triangles], d[:, :, None])[:, :, 0]
+        ok = self.ok[triangles]
+        first = np.maximum(1.0 - vw[:, 0] - vw[:, 1], 0.0)
+        np.maximum(vw, 0.0, out=vw)
+        total = first + vw[:, 0] + vw[:, 1]
+        vw /= np.where(total > 0, total, 1.0)[:, None]
+        vw[~ok | (total <= 0)] = 1.0 / 3.0
+        return vw
+
+
 def barycentric(corners, points) -> np.ndarray:
     """(k, 3) barycentric weights of points (k, 3) in triangles (k, 3, 3), clipped to the triangle;
     a third each on a degenerate triangle."""
-    a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
-    e1, e2, d = b - a, c - a, points - a
-    d11, d12, d22 = (np.einsum("kj,kj->k", x, y) for x, y in ((e1, e1), (e1, e2), (e2, e2)))
-    p1, p2 = np.einsum("kj,kj->k", d, e1), np.einsum("kj,kj->k", d, e2)
-    den = d11 * d22 - d12 * d12
-    ok = den > 1e-12 * np.maximum(d11 * d22, 1e-300)
-    safe = np.where(ok, den, 1.0)
-    v = (d22 * p1 - d12 * p2) / safe
-    w = (d11 * p2 - d12 * p1) / safe
-    out = np.clip(np.column_stack([1.0 - v - w, v, w]), 0.0, None)
-    total = out.sum(axis=1, keepdims=True)
-    out = out / np.where(total > 0, total, 1.0)
-    out[~ok | (total[:, 0] <= 0)] = 1.0 / 3.0
-    return out
+    vw = TriangleFrames(corners).coordinates(np.arange(len(corners)), points)
+    return np.column_stack([1.0 - vw[:, 0] - vw[:, 1], vw])
 
 
 def may_see_sky(alpha, seen: np.ndarray | None) -> np.ndarray | None:

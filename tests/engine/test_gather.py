@@ -15,6 +15,7 @@ from ovrad_addon.gather import (
     CornerCache,
     LatticeValues,
     NearField,
+    TriangleFrames,
     barycentric,
     gather_axis,
     gather_indirect,
@@ -508,14 +509,14 @@ def test_lattice_reproduces_linear_values_and_fills_each_node_once():
         asked.append(len(tri))
         return np.column_stack([pts @ [1.0, -2.0, 0.5] + 3 * tri + side, np.ones(len(tri))])
 
-    lattice = LatticeValues(np.array([[7, 1], [5, 0]]), 2, np.float64, fill)
+    lattice = LatticeValues(TriangleFrames(corners), np.array([[7, 1], [5, 0]]), 2, np.float64, fill)
     rng = np.random.default_rng(3)
     w = rng.dirichlet([1, 1, 1], 500)
     w[:6] = [[1, 0, 0], [0, 1, 0], [0, 0, 1], [0.5, 0.5, 0], [0, 0.5, 0.5], [1 / 3, 1 / 3, 1 / 3]]
     for tri, side in ((0, 1), (1, 1), (0, -1), (0, 1)):
         pts = np.einsum("kc,cj->kj", w, corners[tri])
         k = len(pts)
-        got = lattice.at(np.repeat(corners[tri : tri + 1], k, 0), pts, np.full(k, tri), np.full(k, side))
+        got = lattice.at(pts, np.full(k, tri), np.full(k, side))
         want = pts @ [1.0, -2.0, 0.5] + 3 * tri + side
         np.testing.assert_allclose(got[:, 0], want, atol=1e-12)
         np.testing.assert_allclose(got[:, 1], 1.0, atol=1e-12)
