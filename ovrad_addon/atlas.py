@@ -16,7 +16,7 @@ from . import names
 from .contact import carry_over, contact_flags, contacts, split_at_contacts
 from .errors import OvradError
 from .geometry import ranges_flat, start_of
-from .placement import Placed, grid_angle, place_curved, place_planar, place_planar_small
+from .placement import Placed, grid_angle, place_curved_many, place_planar, place_planar_small
 from .progress import StageCallback, report_stage
 from .rays import EmbreeRays, NumpyRays, make_rays
 from .settings import AtlasSettings
@@ -436,39 +436,70 @@ def _place_all(
         for j, k in enumerate(small[got]):
             out[k] = Placed(*(getattr(p, f.name)[j : j + 1] for f in dataclass_fields(Placed)))
         total += len(got)
-    for k, (c, side) in enumerate(zip(index.sheet_chart, index.sheet_side, strict=True)):
-        if out[k] is not None:
-            continue
-        if index.sheet_clutter[k]:  # a clutter sheet no sample landed on (all of it buried)
+    for k in np.flatnonzero(index.sheet_clutter):  # a clutter sheet no sample landed on (all of it buried)
+        if out[k] is None:
             out[k] = _empty_placed()
+    # Curved sheets: many at once (most are small pieces of a few triangles), in batches of about
+    # CURVED_BATCH samples: larger batches spend more on memory traffic than they save in calls.
+    curved = np.array([k for k in range(len(out)) if out[k] is None and not index.flat[index.sheet_chart[k]]])
+    for batch in _curved_batches(index, spacing, curved, n_per, start, by_chart):
+        if total > settings.max_patches:
+            break
+        c, side = index.sheet_chart[batch], index.sheet_side[batch]
+        tri = by_chart[ranges_flat(start[c], n_per[c])]
+        owner = np.repeat(np.arange(len(batch)), n_per[c])
+        corners = s.corners[tri]
+        corners = np.where((side[owner] < 0)[:, None, None], corners[:, ::-1], corners)
+        nrm = side[owner, None] * ch.normals[tri]
+        got = place_curved_many(corners, nrm, owner, spacing[batch], settings.overlap, ext, batch, count_only)
+        if count_only:
+            total += int(got.sum())
+            continue
+        p, k_per = got
+        p.triangle = tri[p.triangle]
+        for k, a, b in zip(batch, np.cumsum(k_per) - k_per, np.cumsum(k_per), strict=True):
+            out[k] = Placed(*(getattr(p, f.name)[a:b] for f in dataclass_fields(Placed)))
+        total += len(p.radii)
+    for k, (c, side) in enumerate(zip(index.sheet_chart, index.sheet_side, strict=True)):
+        if out[k] is not None or not index.flat[c] or total > settings.max_patches:
             continue
         tri = by_chart[start[c] : end[c]]
         corners = s.corners[tri]
         if side < 0:
             corners = corners[:, ::-1]
-        if index.flat[c]:
-            nrm = side * (ch.normals[tri] * ch.areas[tri, None]).sum(axis=0)
-            if k not in angles:
-                angles[k] = grid_angle(corners, nrm)
-            p = place_planar(
-                corners, nrm, spacing[k], settings.overlap, settings.shapes, ext, angles[k], count_only
-            )
-        else:
-            nrm = side * ch.normals[tri]
-            p = place_curved(corners, nrm, spacing[k], settings.overlap, ext, int(k), count_only)
+        nrm = side * (ch.normals[tri] * ch.areas[tri, None]).sum(axis=0)
+        if k not in angles:
+            angles[k] = grid_angle(corners, nrm)
+        p = place_planar(
+            corners, nrm, spacing[k], settings.overlap, settings.shapes, ext, angles[k], count_only
+        )
         if count_only:
             total += p
-            if total > settings.max_patches:
-                break
             continue
-        if index.flat[c]:
-            p.thickness = p.thickness + 2.0 * index.deviation[c]
+        p.thickness = p.thickness + 2.0 * index.deviation[c]
         p.triangle = tri[p.triangle]
         out[k] = p
         total += len(p.radii)
-        if total > settings.max_patches:
-            break
     return [p for p in out if p is not None], total
+
+
+CURVED_BATCH = 1 << 15  # samples per batch of curved sheets placed at once
+
+
+def _curved_batches(index, spacing, sheets, n_per, start, by_chart) -> list[np.ndarray]:
+    """Curved sheets in consecutive batches of about CURVED_BATCH samples each (sample_sheets: one
+    per (spacing / 6)^2 of a triangle, at least one, plus its corners); a larger sheet alone."""
+    if len(sheets) == 0:
+        return []
+    c = index.sheet_chart[sheets]
+    tri = by_chart[ranges_flat(start[c], n_per[c])]
+    gap = (spacing[sheets] / 6.0)[np.repeat(np.arange(len(sheets)), n_per[c])]
+    per_tri = np.maximum(np.ceil(index.charts.areas[tri] / gap**2), 1) + 3
+    cost = np.add.reduceat(per_tri, start_of(n_per[c]))
+    # batch b takes the sheets whose cumulative cost falls in [b, b + 1) x CURVED_BATCH
+    which = np.floor((np.cumsum(cost) - cost) / CURVED_BATCH).astype(np.int64)
+    cut = np.flatnonzero(np.diff(which)) + 1
+    return np.split(sheets, cut)
 
 
 def _empty_placed() -> Placed:

@@ -195,20 +195,33 @@ def place_planar(
     )
 
 
-def sample_triangles(corners: np.ndarray, spacing: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """Random surface samples about `spacing` apart, plus every corner: (points (s, 3), triangle (s,))."""
+def sample_sheets(
+    corners: np.ndarray, sheet: np.ndarray, gap: np.ndarray, seeds: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Random surface samples about gap[s] apart on each sheet s, plus every corner. corners
+    (T, 3, 3): the triangles of all sheets, grouped by sheet (sheet (T,) ascending). Returns the
+    points (m, 3), their triangles (m,), their sheets (m,), ascending, and which are random (m,)
+    bool. A sheet's samples do not depend on the other sheets sampled with it: its random points
+    from its own stream (seeds[s]; u, then v), then its triangles' corners."""
     a = triangle_geometry(corners)[0]
-    count = np.maximum(np.ceil(a / spacing**2), 1).astype(np.int64)
+    count = np.maximum(np.ceil(a / gap[sheet] ** 2), 1).astype(np.int64)
     tri = np.repeat(np.arange(len(corners)), count)
-    rng = np.random.default_rng(seed)
-    u, v = rng.random(len(tri)), rng.random(len(tri))
+    per_sheet = np.bincount(sheet[tri], minlength=len(gap))
+    u, v = np.empty(len(tri)), np.empty(len(tri))
+    at = 0
+    for s, c in enumerate(per_sheet.tolist()):
+        rng = np.random.default_rng(int(seeds[s]))
+        u[at : at + c], v[at : at + c] = rng.random(c), rng.random(c)
+        at += c
     flip = u + v > 1
     u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
     c = corners[tri]
     pts = c[:, 0] + u[:, None] * (c[:, 1] - c[:, 0]) + v[:, None] * (c[:, 2] - c[:, 0])
-    all_pts = np.concatenate([pts, corners.reshape(-1, 3)])
     all_tri = np.concatenate([tri, np.repeat(np.arange(len(corners)), 3)])
-    return all_pts, all_tri
+    part = np.concatenate([np.zeros(len(tri), np.int64), np.ones(3 * len(corners), np.int64)])
+    order = np.argsort(2 * sheet[all_tri] + part, kind="stable")  # per sheet: random, then corners
+    all_tri = all_tri[order]
+    return np.concatenate([pts, corners.reshape(-1, 3)])[order], all_tri, sheet[all_tri], part[order] == 0
 
 
 # A curved sheet whose area is under this x the disk of a patch's nominal radius gets one patch.
@@ -226,13 +239,12 @@ SLIVER_AREA = 0.35
 SLIVER_PIECE = 4.0  # ... on pieces under this many patch disks; larger sheets keep every voxel
 
 
-def _sample_areas(tri: np.ndarray, areas: np.ndarray) -> np.ndarray:
-    """The area each of sample_triangles' points (their triangles tri (s,)) stands for, given the
-    triangles' areas (T,): its triangle's area over the triangle's random samples; the 3T corners
-    that close the list stand for none."""
-    random = tri[: len(tri) - 3 * len(areas)]
-    count = np.bincount(random, minlength=len(areas))
-    return np.concatenate([areas[random] / count[random], np.zeros(3 * len(areas))])
+def _sample_areas(tri: np.ndarray, areas: np.ndarray, random: np.ndarray) -> np.ndarray:
+    """The area each of sample_sheets' points (their triangles tri (m,)) stands for, given the
+    triangles' areas (T,): its triangle's area over the triangle's random samples (random (m,) bool);
+    the corners stand for none."""
+    count = np.bincount(tri[random], minlength=len(areas))
+    return np.where(random, areas[tri] / np.maximum(count[tri], 1), 0.0)
 
 
 def _merge_slivers(pts: np.ndarray, vox: np.ndarray, weight: np.ndarray, least: float) -> np.ndarray:
@@ -264,30 +276,62 @@ def place_curved(
     count_only: bool = False,
 ) -> Placed | int:
     """Disk patches on a curved sheet: one per occupied voxel of side `spacing` (count_only: how
-    many, without placing them).
+    many, without placing them). tri_normals (T, 3) are already oriented for the sheet's side."""
+    one = np.zeros(len(corners), np.int64)
+    got = place_curved_many(
+        corners, tri_normals, one, np.array([spacing]), overlap, extent, [seed], count_only
+    )
+    return int(got[0]) if count_only else got[0]
 
-    tri_normals (T, 3) are already oriented for the sheet's side.
+
+def place_curved_many(
+    corners: np.ndarray,
+    tri_normals: np.ndarray,
+    sheet: np.ndarray,
+    spacing: np.ndarray,
+    overlap: float,
+    extent: float,
+    seeds,
+    count_only: bool = False,
+) -> tuple[Placed, np.ndarray] | np.ndarray:
+    """Disk patches on curved sheets, one per occupied voxel of side spacing[s] on sheet s, all
+    sheets at once (each placed as if alone: its own seeded samples, seeds[s]). corners (T, 3, 3)
+    and tri_normals (T, 3), already oriented for their sheet's side, grouped by sheet (sheet (T,)
+    ascending, from 0 to len(spacing) - 1). Returns (the patches, sheet by sheet, their
+    triangles indexing corners; how many each sheet got (S,)), or with count_only only the counts.
     """
+    S = len(spacing)
+    spacing = np.asarray(spacing, np.float64)
     gap = spacing / 6.0
-    pts, tri = sample_triangles(corners, gap, seed)
+    pts, tri, ps, random = sample_sheets(corners, sheet, gap, np.asarray(seeds))
+    begin = np.searchsorted(ps, np.arange(S))  # each sheet's first sample
     nrm = tri_normals[tri]
     areas = triangle_geometry(corners)[0]
-    area = areas.sum()
+    area = np.bincount(sheet, weights=areas, minlength=S)
     disk = np.pi * (overlap * spacing / np.sqrt(2.0)) ** 2
-    if area < ONE_PATCH_AREA * disk:
-        # A piece smaller than a patch's disk gets one patch: the voxels it crosses gave a bent
-        # scatter piece 3-8 nearly coincident patches, whose block of C is nearly singular, and
-        # the transport's noise came out amplified (the production room at 100 k patches: B from
-        # -5.4 to +3.3 on one piece, the scatter's median 0.037)
-        vox = np.zeros(len(pts), np.int64)
-    else:
-        key = np.floor((pts - pts.min(axis=0)) / spacing).astype(np.int64)
-        _, vox = unique_rows(key, return_inverse=True)
-        if area < SLIVER_PIECE * disk:
-            vox = _merge_slivers(pts, vox, _sample_areas(tri, areas), SLIVER_AREA * spacing**2)
-    k = int(vox.max()) + 1
+    # voxels, numbered sheet by sheet in the order of their keys. A piece smaller than a patch's
+    # disk gets one patch: the voxels it crosses gave a bent scatter piece 3-8 nearly coincident
+    # patches, whose block of C is nearly singular, and the transport's noise came out amplified
+    # (the production room at 100 k patches: B from -5.4 to +3.3 on one piece, the scatter's
+    # median 0.037)
+    lo = np.minimum.reduceat(pts, begin, axis=0)
+    key = np.floor((pts - lo[ps]) / spacing[ps, None]).astype(np.int64)
+    key[(area < ONE_PATCH_AREA * disk)[ps]] = 0
+    _, vox = unique_rows(np.column_stack([ps, key]), return_inverse=True)
+    local = vox - np.minimum.reduceat(vox, begin)[ps]  # (keys sort by sheet first)
+    sliver = (area >= ONE_PATCH_AREA * disk) & (area < SLIVER_PIECE * disk)
+    if np.any(sliver):
+        weight = _sample_areas(tri, areas, random)
+        held = np.bincount(vox, weights=weight)
+        least = SLIVER_AREA * spacing**2
+        for s in np.flatnonzero(sliver & (np.bincount(ps[held[vox] < least[ps]], minlength=S) > 0)):
+            mine = slice(begin[s], begin[s + 1] if s + 1 < S else len(ps))
+            local[mine] = _merge_slivers(pts[mine], local[mine], weight[mine], least[s])
+    k_per = np.maximum.reduceat(local, begin) + 1
     if count_only:
-        return k
+        return k_per
+    vox = (np.cumsum(k_per) - k_per)[ps] + local
+    k = int(k_per.sum())
     cnt = np.bincount(vox, minlength=k).astype(np.float64)
     mean = np.stack([np.bincount(vox, weights=pts[:, j], minlength=k) for j in range(3)], 1) / cnt[:, None]
     nsum = np.stack([np.bincount(vox, weights=nrm[:, j], minlength=k) for j in range(3)], 1)
@@ -305,11 +349,14 @@ def place_curved(
     np.maximum.at(reach, vox, inplane)
     own_cos = np.ones(k)
     np.minimum.at(own_cos, vox, np.einsum("ij,ij->i", nrm, normals[vox]))
-    radii = overlap * np.maximum(reach + gap, spacing / np.sqrt(2.0))
+    patch_sheet = ps[first]
+    radii = overlap * np.maximum(reach + gap[patch_sheet], spacing[patch_sheet] / np.sqrt(2.0))
     min_cos = np.minimum(0.5, own_cos) - 0.02
-    # Thickness: how far from its plane the sheet strays inside the patch's disk.
-    tree = cKDTree(pts)
-    lists = tree.query_ball_point(centers, radii * 1.0000001)
+    # Thickness: how far from its plane the sheet strays inside the patch's disk (its own sheet's
+    # samples only: a fourth coordinate far apart per sheet keeps the others out of every ball)
+    apart = 4.0 * (float(np.ptp(pts, axis=0).max()) + float(radii.max()) + 1.0)
+    tree = cKDTree(np.column_stack([pts, apart * ps]))
+    lists = tree.query_ball_point(np.column_stack([centers, apart * patch_sheet]), radii * 1.0000001)
     lens = np.fromiter((len(x) for x in lists), np.int64, k)
     idx = np.concatenate([np.asarray(x, np.int64) for x in lists]) if k else np.zeros(0, np.int64)
     own = np.repeat(np.arange(k), lens)
@@ -318,7 +365,7 @@ def place_curved(
     agree = np.einsum("ij,ij->i", nrm[idx], normals[own]) >= min_cos[own]
     thick = np.zeros(k)
     np.maximum.at(thick, own[agree], hh[agree])
-    return Placed(
+    placed = Placed(
         centers=centers,
         normals=normals,
         tangents=tangents,
@@ -328,6 +375,7 @@ def place_curved(
         min_cos=min_cos,
         triangle=tri[first],
     )
+    return placed, k_per
 
 
 def place_planar_small(

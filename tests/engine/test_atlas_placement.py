@@ -238,3 +238,41 @@ def test_counting_a_placement_gives_the_count_placing_makes():
         fresh = {}
         _place_all(index, settings, base, fresh)
         assert fresh == angles and len(angles) > 0
+
+
+def test_curved_sheets_placed_together_are_placed_as_if_alone():
+    """place_curved_many places each sheet exactly as when it is the only one (its own seeded
+    samples, voxels, slivers merged within it, thickness from its own samples only), whatever
+    sheets share the batch: pieces of one patch, of a few (slivers merged) and of many, two of
+    them overlapping in space (both sides of a leaf are two sheets)."""
+    from ovrad_addon import placement
+
+    rng = np.random.default_rng(4)
+    pieces = []
+    for size in (0.02, 0.05, 0.08, 0.3, 0.05):
+        v, t = scenes.bent_leaf(rng, size, 0.5, 6)
+        c = v[t]
+        n = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
+        pieces.append((c, n / np.linalg.norm(n, axis=1, keepdims=True)))
+    pieces.append((pieces[3][0][:, ::-1], -pieces[3][1]))  # the large leaf's other side, same place
+    spacing, overlap, seeds = np.array([0.06, 0.06, 0.05, 0.04, 0.2, 0.04]), 1.3, [7, 3, 11, 5, 2, 8]
+    alone = [
+        placement.place_curved(c, n, sp, overlap, 1.0, s)
+        for (c, n), sp, s in zip(pieces, spacing, seeds, strict=True)
+    ]
+    counts = [len(p.radii) for p in alone]
+    assert counts[0] == 1 and counts[3] > 20 and len(set(counts)) > 3
+    corners = np.concatenate([c for c, _ in pieces])
+    normals = np.concatenate([n for _, n in pieces])
+    sheet = np.repeat(np.arange(len(pieces)), [len(c) for c, _ in pieces])
+    together, k_per = placement.place_curved_many(corners, normals, sheet, spacing, overlap, 1.0, seeds)
+    assert list(k_per) == counts
+    np.testing.assert_array_equal(
+        placement.place_curved_many(corners, normals, sheet, spacing, overlap, 1.0, seeds, count_only=True),
+        counts,
+    )
+    first = np.cumsum([0] + [len(c) for c, _ in pieces])
+    for f in ("centers", "normals", "tangents", "radii", "shapes", "thickness", "min_cos"):
+        np.testing.assert_array_equal(getattr(together, f), np.concatenate([getattr(p, f) for p in alone]))
+    want = np.concatenate([p.triangle + first[k] for k, p in enumerate(alone)])
+    np.testing.assert_array_equal(together.triangle, want)
