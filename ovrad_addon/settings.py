@@ -20,8 +20,12 @@ SIDE_MODES = ("AUTO", "FRONT", "BOTH")
 # lamps_doorway at 100 k patches to the digit (1.63 and 1.74 %). Rows of C against a rule of order
 # 24 on that room: 3.5 % off on average at 2 k patches with q = 8 (2.6 % with 12), 1.3 % at 100 k
 # (0.64 %). The coarse rule starts well above the largest count where it was seen to cost.
+# q = 6 against 8 at 100 k patches, in one sitting each: the production room 5.15 against 5.29 %
+# (Generate 49.8 against 58-75 s) and, on a second build of it, 6.48 against 7.37 % (42.1 against
+# 61.3 s); the Cornell box and lamps_doorway to the digit (1.63, 1.74 %). An earlier round's
+# build had given 5.56 against 5.28 %: the room's error moves more between builds than with q.
 FINE_QUADRATURE = 12
-COARSE_QUADRATURE = 8
+COARSE_QUADRATURE = 6
 COARSE_FROM = 50_000  # patches
 
 
