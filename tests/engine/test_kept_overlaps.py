@@ -285,3 +285,27 @@ def test_a_large_atlas_keeps_the_coarser_rule_it_was_integrated_with(monkeypatch
     alone = prepare(s, atlas, FAST)
     assert alone.kept == 0
     assert abs(alone.C - fine).max() <= 1e-12 * abs(fine).max()
+
+
+def test_patches_holding_almost_none_of_their_support_are_dropped(monkeypatch):
+    """Generate drops a patch whose alpha averages under MIN_OWN_SHARE over its support (c_kk /
+    A_k: it hangs almost wholly off its piece and others hold the light where it lies; its B is
+    left free to ring in the solve). With the share raised to catch some in the busy room (smooth
+    beta): none kept is under it, some were dropped, and the C kept is the one a solve integrates
+    on the stored atlas, its dropped patches' neighbours integrated again without them."""
+    from ovrad_addon import atlas as atlas_mod
+
+    s = busy_room()
+    settings = replace(SETTINGS, beta="smooth")
+    monkeypatch.setattr(atlas_mod, "MIN_OWN_SHARE", 0.0)
+    plain = build_atlas_and_overlaps(s, settings)
+    share = plain.C.diagonal() / plain.atlas.support_area
+    assert share.min() < 0.12 < np.percentile(share, 5)  # few patches hold so little
+    monkeypatch.setattr(atlas_mod, "MIN_OWN_SHARE", 0.12)
+    out = build_atlas_and_overlaps(s, settings)
+    assert len(out.atlas) < len(plain.atlas) - np.sum(share < 0.12) // 2
+    assert np.all(out.C.diagonal() >= 0.12 * out.atlas.support_area)
+    index = both_sides_index(s, atlas=out.atlas)
+    again, support = overlap_matrix(attach_sheets(out.atlas, index), index, out.quadrature)
+    assert abs(again - out.C).max() == 0.0
+    np.testing.assert_array_equal(support, out.atlas.support_area)
