@@ -16,7 +16,7 @@ from . import names
 from .contact import carry_over, contact_flags, contacts, split_at_contacts
 from .errors import OvradError
 from .geometry import ranges_flat, start_of
-from .placement import Placed, grid_angle, place_curved_many, place_planar, place_planar_small
+from .placement import Placed, grid_angle, place_curved_many, place_planar, place_planar_small, sample_counts
 from .progress import StageCallback, report_stage
 from .rays import EmbreeRays, NumpyRays, make_rays
 from .settings import AtlasSettings
@@ -487,14 +487,14 @@ CURVED_BATCH = 1 << 15  # samples per batch of curved sheets placed at once
 
 
 def _curved_batches(index, spacing, sheets, n_per, start, by_chart) -> list[np.ndarray]:
-    """Curved sheets in consecutive batches of about CURVED_BATCH samples each (sample_sheets: one
-    per (spacing / 6)^2 of a triangle, at least one, plus its corners); a larger sheet alone."""
+    """Curved sheets in consecutive batches of about CURVED_BATCH samples each (the samples of
+    placement.sample_sheets at spacing / 6, and the corners); a larger sheet alone."""
     if len(sheets) == 0:
         return []
     c = index.sheet_chart[sheets]
     tri = by_chart[ranges_flat(start[c], n_per[c])]
     gap = (spacing[sheets] / 6.0)[np.repeat(np.arange(len(sheets)), n_per[c])]
-    per_tri = np.maximum(np.ceil(index.charts.areas[tri] / gap**2), 1) + 3
+    per_tri = sample_counts(index.charts.areas[tri], gap) + 3
     cost = np.add.reduceat(per_tri, start_of(n_per[c]))
     # batch b takes the sheets whose cumulative cost falls in [b, b + 1) x CURVED_BATCH
     which = np.floor((np.cumsum(cost) - cost) / CURVED_BATCH).astype(np.int64)
@@ -657,7 +657,8 @@ def integrate(
         progress=lambda f: report_stage(progress, start + (1.0 - start) * f, "integrating overlaps"),
     )
     C = C.tocsr()
-    while np.any(_to_drop(C, support)):
+    dropped = _to_drop(C, support)
+    while np.any(dropped):
         # Patches with no support on their sheet: a face lying on another (a box's bottom on
         # the floor) is hidden by it, and light can never reach it; and patches that hold almost
         # none of the light where they lie (_to_drop). Drop them: C loses their rows
@@ -665,7 +666,6 @@ def integrate(
         # a dropped patch still cut their rule's rays at its rim, and where faces coincide it may
         # have held some of their points; so C is the one a solve of the stored atlas integrates.
         h, i = neighbour_pairs(atlas)
-        dropped = _to_drop(C, support)
         near = np.zeros(len(atlas), bool)
         near[h[dropped[i]]] = True
         keep = np.flatnonzero(~dropped)
@@ -678,6 +678,7 @@ def integrate(
             again, area = overlap_matrix(atlas, index, quadrature, rows=redo)
             C = (diags((~near[keep]).astype(float)) @ C + again).tocsr()
             support[redo] = area[redo]
+        dropped = _to_drop(C, support)
     C.eliminate_zeros()
     nz = (C + C.T).tocsr()
     nz.data[:] = 1

@@ -527,13 +527,6 @@ class TriangleFrames:
         return vw
 
 
-def barycentric(corners, points) -> np.ndarray:
-    """(k, 3) barycentric weights of points (k, 3) in triangles (k, 3, 3), clipped to the triangle;
-    a third each on a degenerate triangle."""
-    vw = TriangleFrames(corners).coordinates(np.arange(len(corners)), points)
-    return np.column_stack([1.0 - vw[:, 0] - vw[:, 1], vw])
-
-
 def may_see_sky(alpha, seen: np.ndarray | None) -> np.ndarray | None:
     """(k,) bool: the points (alpha (k, n) of the patches there) that may see the sky: a patch
     there is marked in `seen` (n,) (pipeline.sky_patches), or none covers them; None: all of them

@@ -195,6 +195,12 @@ def place_planar(
     )
 
 
+def sample_counts(areas: np.ndarray, gap: np.ndarray) -> np.ndarray:
+    """Random samples sample_sheets draws on triangles of these areas at these gaps: one per gap^2,
+    at least one (each triangle's three corners come on top)."""
+    return np.maximum(np.ceil(areas / gap**2), 1).astype(np.int64)
+
+
 def sample_sheets(
     corners: np.ndarray, sheet: np.ndarray, gap: np.ndarray, seeds: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -203,8 +209,7 @@ def sample_sheets(
     points (m, 3), their triangles (m,), their sheets (m,), ascending, and which are random (m,)
     bool. A sheet's samples do not depend on the other sheets sampled with it: its random points
     from its own stream (seeds[s]; u, then v), then its triangles' corners."""
-    a = triangle_geometry(corners)[0]
-    count = np.maximum(np.ceil(a / gap[sheet] ** 2), 1).astype(np.int64)
+    count = sample_counts(triangle_geometry(corners)[0], gap[sheet])
     tri = np.repeat(np.arange(len(corners)), count)
     per_sheet = np.bincount(sheet[tri], minlength=len(gap))
     u, v = np.empty(len(tri)), np.empty(len(tri))

@@ -16,7 +16,6 @@ from ovrad_addon.gather import (
     LatticeValues,
     NearField,
     TriangleFrames,
-    barycentric,
     gather_axis,
     gather_indirect,
     gather_unique,
@@ -439,6 +438,12 @@ def test_near_hits_resolve_a_shadow_at_a_walls_foot(cuts):
         problem, state.radiosity, pts, tri, 1, state.first_shot, replace(light, gather_rays=0)
     )
     np.testing.assert_allclose(np.pi * (H - H_direct)[:, 0] / want - 1, signed(NearField.reach), atol=1e-9)
+
+
+def barycentric(corners, points):
+    """The three weights TriangleFrames gives points (k, 3) on triangles (k, 3, 3)."""
+    vw = TriangleFrames(corners).coordinates(np.arange(len(corners)), points)
+    return np.column_stack([1.0 - vw.sum(axis=1), vw])
 
 
 def test_barycentric_weights():
