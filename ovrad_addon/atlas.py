@@ -16,7 +16,14 @@ from . import names
 from .contact import carry_over, contact_flags, contacts, split_at_contacts
 from .errors import OvradError
 from .geometry import ranges_flat, start_of
-from .placement import Placed, grid_angle, place_curved_many, place_planar, place_planar_small, sample_counts
+from .placement import (
+    Placed,
+    grid_angle,
+    place_curved_many,
+    place_planar_many,
+    place_planar_small,
+    sample_counts,
+)
 from .progress import StageCallback, report_stage
 from .rays import EmbreeRays, NumpyRays, make_rays
 from .settings import AtlasSettings
@@ -460,25 +467,41 @@ def _place_all(
         for k, a, b in zip(batch, np.cumsum(k_per) - k_per, np.cumsum(k_per), strict=True):
             out[k] = Placed(*(getattr(p, f.name)[a:b] for f in dataclass_fields(Placed)))
         total += len(p.radii)
-    for k, (c, side) in enumerate(zip(index.sheet_chart, index.sheet_side, strict=True)):
-        if out[k] is not None or not index.flat[c] or total > settings.max_patches:
-            continue
-        tri = by_chart[start[c] : end[c]]
-        corners = s.corners[tri]
-        if side < 0:
-            corners = corners[:, ::-1]
-        nrm = side * (ch.normals[tri] * ch.areas[tri, None]).sum(axis=0)
+    # The other planar sheets: many at once too, in batches of about PLANAR_BATCH cells and triangles.
+    planar = np.array(
+        [k for k in range(len(out)) if out[k] is None and index.flat[index.sheet_chart[k]]], np.int64
+    )
+    c, side = index.sheet_chart[planar], index.sheet_side[planar]
+    for k, ck, sk in zip(planar, c, side, strict=True):  # each sheet's grid turn, once for all placements
         if k not in angles:
-            angles[k] = grid_angle(corners, nrm)
-        p = place_planar(
-            corners, nrm, spacing[k], settings.overlap, settings.shapes, ext, angles[k], count_only
+            tri = by_chart[start[ck] : end[ck]]
+            corners = s.corners[tri][:, ::-1] if sk < 0 else s.corners[tri]
+            angles[k] = grid_angle(corners, sk * (ch.normals[tri] * ch.areas[tri, None]).sum(axis=0))
+    cost = n_per[c] + index.sheet_area[planar] / spacing[planar] ** 2
+    which = np.floor((np.cumsum(cost) - cost) / PLANAR_BATCH).astype(np.int64)
+    for batch in np.split(np.arange(len(planar)), np.flatnonzero(np.diff(which)) + 1):
+        if total > settings.max_patches or len(batch) == 0:
+            break
+        k, cb, sb = planar[batch], c[batch], side[batch]
+        tri = by_chart[ranges_flat(start[cb], n_per[cb])]
+        owner = np.repeat(np.arange(len(batch)), n_per[cb])
+        corners = s.corners[tri]
+        corners = np.where((sb[owner] < 0)[:, None, None], corners[:, ::-1], corners)
+        nrm = sb[:, None] * np.add.reduceat(
+            ch.normals[tri] * ch.areas[tri, None], start_of(n_per[cb]), axis=0
+        )
+        angle = np.array([angles[j] for j in k])
+        got = place_planar_many(
+            corners, owner, nrm, spacing[k], settings.overlap, settings.shapes, ext, angle, count_only
         )
         if count_only:
-            total += p
+            total += int(got.sum())
             continue
-        p.thickness = p.thickness + 2.0 * index.deviation[c]
+        p, k_per = got
         p.triangle = tri[p.triangle]
-        out[k] = p
+        p.thickness = p.thickness + 2.0 * np.repeat(index.deviation[cb], k_per)
+        for j, a, b in zip(k, np.cumsum(k_per) - k_per, np.cumsum(k_per), strict=True):
+            out[j] = Placed(*(getattr(p, f.name)[a:b] for f in dataclass_fields(Placed)))
         total += len(p.radii)
     return [p for p in out if p is not None], total
 
@@ -526,6 +549,7 @@ def _empty_placed() -> Placed:
 
 
 SMALL_SHEET = 4  # planar sheets of at most this many triangles are placed together
+PLANAR_BATCH = 1 << 16  # planar sheets placed at once: about this many cells and triangles
 
 
 def _too_many(count: int, settings: AtlasSettings) -> OvradError:

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
-from .geometry import tangent_frame, unique_rows
+from .geometry import start_of, tangent_frame, unique_rows
 from .names import SHAPE_DISK, SHAPE_SQUARE
 from .surfaces import triangle_geometry
 
@@ -59,9 +59,12 @@ def plane_frame(points2d: np.ndarray) -> float:
     return float(np.min(ang[good]))
 
 
-def _sat_overlap(tri2d: np.ndarray, lo: np.ndarray, hi: np.ndarray, eps: float) -> np.ndarray:
-    """Triangles (m, 3, 2) and rectangles [lo, hi] (m, 2) overlap with positive area (SAT, margin eps)."""
-    ok = np.all(tri2d.max(axis=1) > lo + eps, axis=1) & np.all(tri2d.min(axis=1) < hi - eps, axis=1)
+def _sat_overlap(tri2d: np.ndarray, lo: np.ndarray, hi: np.ndarray, eps) -> np.ndarray:
+    """Triangles (m, 3, 2) and rectangles [lo, hi] (m, 2) overlap with positive area (SAT, margin
+    eps: one, or one per pair (m,))."""
+    eps = np.asarray(eps, np.float64)
+    e2 = eps[:, None] if eps.ndim else eps
+    ok = np.all(tri2d.max(axis=1) > lo + e2, axis=1) & np.all(tri2d.min(axis=1) < hi - e2, axis=1)
     corners = np.stack(
         [lo, np.stack([hi[:, 0], lo[:, 1]], 1), hi, np.stack([lo[:, 0], hi[:, 1]], 1)], axis=1
     )  # (m, 4, 2)
@@ -75,9 +78,12 @@ def _sat_overlap(tri2d: np.ndarray, lo: np.ndarray, hi: np.ndarray, eps: float) 
     return ok
 
 
-def _segment_touches(a: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray, eps: float) -> np.ndarray:
-    """Segments a-b (m, 2) touch or cross the closed rectangles [lo - eps, hi + eps] (m, 2)."""
-    lo, hi = lo - eps, hi + eps
+def _segment_touches(a: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray, eps) -> np.ndarray:
+    """Segments a-b (m, 2) touch or cross the closed rectangles [lo - eps, hi + eps] (m, 2); eps:
+    one, or one per segment (m,)."""
+    eps = np.asarray(eps, np.float64)
+    e2 = eps[:, None] if eps.ndim else eps
+    lo, hi = lo - e2, hi + e2
     ok = np.all(np.maximum(a, b) >= lo, axis=1) & np.all(np.minimum(a, b) <= hi, axis=1)
     d = b - a
     nrm = np.stack([-d[:, 1], d[:, 0]], 1)
@@ -109,90 +115,140 @@ def place_planar(
 ) -> Placed | int:
     """Grid patches on one planar sheet given its triangles (T, 3, 3) and the sheet's unit normal;
     angle: its grid_angle() when known. count_only: how many, without placing them."""
-    n = normal / np.linalg.norm(normal)
-    e1, e2 = tangent_frame(n)
-    origin = corners.reshape(-1, 3).mean(axis=0)
-    rel = corners - origin
     ang = grid_angle(corners, normal) if angle is None else angle
-    c, s = np.cos(ang), np.sin(ang)
+    got = place_planar_many(
+        corners,
+        np.zeros(len(corners), np.int64),
+        np.reshape(normal, (1, 3)),
+        np.array([spacing]),
+        overlap,
+        shapes,
+        extent,
+        np.array([ang]),
+        count_only,
+    )
+    return int(got[0]) if count_only else got[0]
+
+
+def place_planar_many(
+    corners: np.ndarray,
+    owner: np.ndarray,
+    normals: np.ndarray,
+    spacing: np.ndarray,
+    overlap: float,
+    shapes: str,
+    extent: float,
+    angles: np.ndarray,
+    count_only: bool = False,
+) -> tuple[Placed, np.ndarray] | np.ndarray:
+    """Grid patches on many planar sheets at once, each exactly as placed alone (no Python loop).
+
+    corners (m, 3, 3): the triangles of len(normals) sheets, grouped by sheet (owner (m,) ascending,
+    every sheet at least one triangle); normals (S, 3) the sheets' normals (any length); spacing
+    (S,); angles (S,) their grid_angle(). Each sheet's grid is aligned with its bounding
+    rectangle, cells of at most `spacing`, one patch per cell a triangle overlaps with area: a
+    square on cells a border edge touches (shapes AUTO), else the disk circumscribing the cell.
+    Returns (Placed, k_per (S,)): the patches grouped by sheet (triangle indexing corners), or
+    with count_only the counts (S,) alone.
+    """
+    S = len(normals)
+    owner = np.asarray(owner, np.int64)
+    n = normals / np.linalg.norm(normals, axis=1, keepdims=True)
+    e1, e2 = tangent_frame(n)
+    tri_per = np.bincount(owner, minlength=S)
+    first = start_of(tri_per)
+    origin = np.add.reduceat(corners.sum(axis=1), first, axis=0) / (3 * tri_per)[:, None]
+    c, s = np.cos(angles)[:, None], np.sin(angles)[:, None]
     t1 = c * e1 + s * e2
     t2 = np.cross(n, t1)
-    p2 = np.stack([rel @ t1, rel @ t2], axis=-1)
-    lo = p2.reshape(-1, 2).min(axis=0)
-    hi = p2.reshape(-1, 2).max(axis=0)
-    ncell = np.maximum(np.ceil((hi - lo) / spacing - 1e-9), 1).astype(np.int64)
+    rel = corners - origin[owner][:, None]
+    p2 = np.stack([np.einsum("tvk,tk->tv", rel, t1[owner]), np.einsum("tvk,tk->tv", rel, t2[owner])], -1)
+    lo = np.minimum.reduceat(p2.min(axis=1), first, axis=0)
+    hi = np.maximum.reduceat(p2.max(axis=1), first, axis=0)
+    ncell = np.maximum(np.ceil((hi - lo) / spacing[:, None] - 1e-9), 1).astype(np.int64)
     h = np.maximum((hi - lo) / ncell, 1e-300)
-    eps = 1e-9 * max(extent, float(np.max(hi - lo)))
+    eps = 1e-9 * np.maximum(extent, np.max(hi - lo, axis=1))
+    base = start_of(ncell[:, 0] * ncell[:, 1])  # cell keys: base[sheet] + ix * ny + iy
     # Candidate (triangle, cell) pairs from each triangle's bounding box, then exact overlap.
-    tlo = np.floor((p2.min(axis=1) - lo) / h).astype(np.int64).clip(0, ncell - 1)
-    thi = np.floor((p2.max(axis=1) - lo) / h).astype(np.int64).clip(0, ncell - 1)
+    lo_t, h_t, n_t = lo[owner], h[owner], ncell[owner]
+    tlo = np.floor((p2.min(axis=1) - lo_t) / h_t).astype(np.int64).clip(0, n_t - 1)
+    thi = np.floor((p2.max(axis=1) - lo_t) / h_t).astype(np.int64).clip(0, n_t - 1)
     tx, ix = _ranges(tlo[:, 0], thi[:, 0])
     rep = thi[tx, 1] - tlo[tx, 1] + 1
-    owner = np.repeat(tx, rep)
+    pair = np.repeat(tx, rep)  # the triangle of each pair
     ixr = np.repeat(ix, rep)
-    start = np.cumsum(rep) - rep
-    iy = tlo[owner, 1] + np.arange(rep.sum()) - np.repeat(start, rep)
-    clo = lo + np.stack([ixr, iy], 1) * h
-    hit = _sat_overlap(p2[owner], clo, clo + h, eps)
-    cells, first = np.unique(ixr[hit] * ncell[1] + iy[hit], return_index=True)
+    iy = tlo[pair, 1] + np.arange(rep.sum()) - np.repeat(start_of(rep), rep)
+    sheet = owner[pair]
+    clo = lo[sheet] + np.stack([ixr, iy], 1) * h[sheet]
+    hit = _sat_overlap(p2[pair], clo, clo + h[sheet], eps[sheet])
+    key = base[sheet[hit]] + ixr[hit] * ncell[sheet[hit], 1] + iy[hit]
+    cells, at = np.unique(key, return_index=True)
+    cell_sheet = sheet[hit][at]
+    k_per = np.bincount(cell_sheet, minlength=S)
     if count_only:
-        return len(cells)
-    cell_tri = owner[hit][first]  # a triangle overlapping each cell (its patch's sheet is under it)
-    cx, cy = cells // ncell[1], cells % ncell[1]
-    # Boundary edges: edges used once among the sheet's triangles (welded by 2-D position).
-    e_a = p2[:, [0, 1, 2]].reshape(-1, 2)
-    e_b = p2[:, [1, 2, 0]].reshape(-1, 2)
-    qa = np.round(e_a / (eps * 100)).astype(np.int64)
-    qb = np.round(e_b / (eps * 100)).astype(np.int64)
-    swap = (qa[:, 0] > qb[:, 0]) | ((qa[:, 0] == qb[:, 0]) & (qa[:, 1] > qb[:, 1]))
-    key = np.concatenate([np.where(swap[:, None], qb, qa), np.where(swap[:, None], qa, qb)], axis=1)
-    _, inv, cnt = unique_rows(key, return_inverse=True, return_counts=True)
-    border = cnt[inv] == 1
-    ba, bb = e_a[border], e_b[border]
-    boundary = np.zeros(len(cells), bool)
-    if len(ba) and shapes == "AUTO":
-        blo = np.floor((np.minimum(ba, bb) - eps - lo) / h).astype(np.int64).clip(0, ncell - 1)
-        bhi = np.floor((np.maximum(ba, bb) + eps - lo) / h).astype(np.int64).clip(0, ncell - 1)
-        bx, jx = _ranges(blo[:, 0], bhi[:, 0])
-        rep = bhi[bx, 1] - blo[bx, 1] + 1
-        own = np.repeat(bx, rep)
-        jxr = np.repeat(jx, rep)
-        start = np.cumsum(rep) - rep
-        jy = blo[own, 1] + np.arange(rep.sum()) - np.repeat(start, rep)
-        clo = lo + np.stack([jxr, jy], 1) * h
-        touch = _segment_touches(ba[own], bb[own], clo, clo + h, eps)
-        touched = np.unique(jxr[touch] * ncell[1] + jy[touch])
-        boundary = np.isin(cells, touched)
-    if shapes == "SQUARES":
-        square = np.ones(len(cells), bool)
-    elif shapes == "DISKS":
-        square = np.zeros(len(cells), bool)
-    else:
-        square = boundary
-    centre2 = lo + (np.stack([cx, cy], 1) + 0.5) * h
-    half_diag = 0.5 * float(np.hypot(h[0], h[1]))
-    half_side = 0.5 * float(h.max())
+        return k_per
+    cell_tri = pair[hit][at]  # a triangle overlapping each cell (its patch's sheet is under it)
+    local = cells - base[cell_sheet]
+    cx, cy = local // ncell[cell_sheet, 1], local % ncell[cell_sheet, 1]
+    square = np.full(len(cells), shapes == "SQUARES")
+    if shapes == "AUTO":
+        square = np.isin(cells, _border_cells(p2, owner, lo, h, ncell, eps, base))
+    lo_c, hi_c, h_c, eps_c = lo[cell_sheet], hi[cell_sheet], h[cell_sheet], eps[cell_sheet]
+    centre2 = lo_c + (np.stack([cx, cy], 1) + 0.5) * h_c
+    half_diag = 0.5 * np.hypot(h_c[:, 0], h_c[:, 1])
+    half_side = 0.5 * h_c.max(axis=1)
     radii = overlap * np.where(square, half_side, half_diag)
     # Pull patches that stick out of the sheet's bounding rectangle back inside, as far as
     # keeps their own cell covered: on rectangular sheets no support is then clipped, so the
     # integration rule needs no refinement at the borders.
-    slack = np.where(square, radii - 0.5 * h.max(), (radii - half_diag) / np.sqrt(2.0))[:, None]
+    slack = np.where(square, radii - half_side, (radii - half_diag) / np.sqrt(2.0))[:, None]
     reach = radii[:, None]
-    lo_c = np.maximum(lo + reach, centre2 - slack)
-    hi_c = np.minimum(hi - reach, centre2 + slack)
-    centre2 = np.where(lo_c <= hi_c + eps, np.minimum(np.maximum(centre2, lo_c), hi_c + eps), centre2)
-    centers = origin + centre2[:, :1] * t1 + centre2[:, 1:] * t2
-    k = len(cells)
-    return Placed(
+    low = np.maximum(lo_c + reach, centre2 - slack)
+    high = np.minimum(hi_c - reach, centre2 + slack)
+    e = eps_c[:, None]
+    centre2 = np.where(low <= high + e, np.minimum(np.maximum(centre2, low), high + e), centre2)
+    centers = origin[cell_sheet] + centre2[:, :1] * t1[cell_sheet] + centre2[:, 1:] * t2[cell_sheet]
+    placed = Placed(
         centers=centers,
-        normals=np.tile(n, (k, 1)),
-        tangents=np.tile(t1, (k, 1)),
+        normals=n[cell_sheet],
+        tangents=t1[cell_sheet],
         radii=radii,
         shapes=np.where(square, SHAPE_SQUARE, SHAPE_DISK).astype(np.int8),
         thickness=1e-3 * radii + 1e-6 * extent,
-        min_cos=np.full(k, 0.9),
+        min_cos=np.full(len(cells), 0.9),
         triangle=cell_tri,
     )
+    return placed, k_per
+
+
+def _border_cells(p2, owner, lo, h, ncell, eps, base) -> np.ndarray:
+    """Keys of the cells (as place_planar_many's) that a border edge of their sheet touches: an edge
+    used once among the sheet's triangles (p2 (m, 3, 2) in the sheets' planes, welded by position)."""
+    e_a = p2[:, [0, 1, 2]].reshape(-1, 2)
+    e_b = p2[:, [1, 2, 0]].reshape(-1, 2)
+    sheet = np.repeat(owner, 3)
+    quantum = (eps * 100)[sheet, None]
+    qa = np.round(e_a / quantum).astype(np.int64)
+    qb = np.round(e_b / quantum).astype(np.int64)
+    swap = (qa[:, 0] > qb[:, 0]) | ((qa[:, 0] == qb[:, 0]) & (qa[:, 1] > qb[:, 1]))
+    weld = np.column_stack([sheet, np.where(swap[:, None], qb, qa), np.where(swap[:, None], qa, qb)])
+    _, inv, cnt = unique_rows(weld, return_inverse=True, return_counts=True)
+    border = cnt[inv] == 1
+    ba, bb, bs = e_a[border], e_b[border], sheet[border]
+    if len(ba) == 0:
+        return np.zeros(0, np.int64)
+    lo_b, h_b, n_b, eps_b = lo[bs], h[bs], ncell[bs], eps[bs, None]
+    blo = np.floor((np.minimum(ba, bb) - eps_b - lo_b) / h_b).astype(np.int64).clip(0, n_b - 1)
+    bhi = np.floor((np.maximum(ba, bb) + eps_b - lo_b) / h_b).astype(np.int64).clip(0, n_b - 1)
+    bx, jx = _ranges(blo[:, 0], bhi[:, 0])
+    rep = bhi[bx, 1] - blo[bx, 1] + 1
+    edge = np.repeat(bx, rep)
+    jxr = np.repeat(jx, rep)
+    jy = blo[edge, 1] + np.arange(rep.sum()) - np.repeat(start_of(rep), rep)
+    es = bs[edge]
+    clo = lo[es] + np.stack([jxr, jy], 1) * h[es]
+    touch = _segment_touches(ba[edge], bb[edge], clo, clo + h[es], eps[es])
+    return np.unique(base[es[touch]] + jxr[touch] * ncell[es[touch], 1] + jy[touch])
 
 
 def sample_counts(areas: np.ndarray, gap: np.ndarray) -> np.ndarray:

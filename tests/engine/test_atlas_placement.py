@@ -276,3 +276,60 @@ def test_curved_sheets_placed_together_are_placed_as_if_alone():
         np.testing.assert_array_equal(getattr(together, f), np.concatenate([getattr(p, f) for p in alone]))
     want = np.concatenate([p.triangle + first[k] for k, p in enumerate(alone)])
     np.testing.assert_array_equal(together.triangle, want)
+
+
+def test_planar_sheets_placed_together_are_placed_as_if_alone():
+    """place_planar_many places each planar sheet exactly as when it is the only one, whatever
+    sheets share the batch, and its grid is the one the sheet's bounding rectangle gives: a
+    w x h rectangle at spacing s gets ceil(w / s) x ceil(h / s) cells, squares on the cells its
+    border touches and disks inside; a frame (a square with a square hole) squares on both rims."""
+    from ovrad_addon import placement
+    from ovrad_addon.names import SHAPE_SQUARE
+
+    def quad(x0, y0, x1, y1, z=0.0):
+        p = np.array([[x0, y0, z], [x1, y0, z], [x1, y1, z], [x0, y1, z]])
+        return p[[[0, 1, 2], [0, 2, 3]]]
+
+    rect = quad(0.0, 0.0, 2.0, 0.9)  # 10 x 5 cells at spacing 0.2 (0.9 / 0.2 = 4.5 -> 5)
+    # a 1.2 m frame, 0.4 m wide, as eight quads around a 0.4 m hole: 6 x 6 cells of 0.2 m, the
+    # hole's 2 x 2 left empty
+    edges = (0.0, 0.4, 0.8, 1.2)
+    frame = np.concatenate(
+        [
+            quad(edges[i], edges[j], edges[i + 1], edges[j + 1], 1.0)
+            for i in range(3)
+            for j in range(3)
+            if (i, j) != (1, 1)
+        ]
+    )
+    tilted = rect @ np.array([[0.8, 0.0, 0.6], [0.0, 1.0, 0.0], [-0.6, 0.0, 0.8]]).T + 5.0
+    back = rect[:, ::-1]  # the rectangle's other side, same place
+    tiny = quad(3.0, 3.0, 3.05, 3.02)  # smaller than one cell
+    sheets = [rect, frame, tilted, back, tiny]
+    normals = [np.cross(c[0, 1] - c[0, 0], c[0, 2] - c[0, 0]) for c in sheets]
+    spacing, overlap = np.full(len(sheets), 0.2), 1.3
+    angles = np.array([placement.grid_angle(c, n) for c, n in zip(sheets, normals, strict=True)])
+    alone = [
+        placement.place_planar(c, n, 0.2, overlap, "AUTO", 10.0, a)
+        for c, n, a in zip(sheets, normals, angles, strict=True)
+    ]
+    corners = np.concatenate(sheets)
+    owner = np.repeat(np.arange(len(sheets)), [len(c) for c in sheets])
+    args = (corners, owner, np.array(normals), spacing, overlap, "AUTO", 10.0, angles)
+    together, k_per = placement.place_planar_many(*args)
+    np.testing.assert_array_equal(placement.place_planar_many(*args, count_only=True), k_per)
+    assert list(k_per) == [len(p.radii) for p in alone]
+    first = np.cumsum([0] + [len(c) for c in sheets])
+    for f in ("centers", "normals", "tangents", "radii", "shapes", "thickness", "min_cos"):
+        np.testing.assert_array_equal(getattr(together, f), np.concatenate([getattr(p, f) for p in alone]))
+    want = np.concatenate([p.triangle + first[k] for k, p in enumerate(alone)])
+    np.testing.assert_array_equal(together.triangle, want)
+    # the grids, from the rectangles alone
+    assert list(k_per) == [50, 32, 50, 50, 1]
+    square = [p.shapes == SHAPE_SQUARE for p in alone]
+    assert square[0].sum() == 50 - 8 * 3 and square[2].sum() == 26 and square[3].sum() == 26
+    assert square[1].all()  # every cell of a 0.4 m wide frame touches one of its rims
+    assert square[4].all()
+    inner = ~square[0]
+    np.testing.assert_allclose(alone[0].radii[inner], overlap * 0.5 * np.hypot(0.2, 0.18))
+    np.testing.assert_allclose(alone[0].radii[~inner], overlap * 0.5 * 0.2)
