@@ -321,7 +321,11 @@ def covered(atlas, index, patches: np.ndarray, points: np.ndarray, lift: np.ndar
     if len(patches) == 0:
         return np.zeros(0, bool)
     return geometry_over(
-        index.rays, points, atlas.normals[patches], lift[patches], COVER * atlas.radii[patches]
+        index.rays,
+        points,
+        np.take(atlas.normals, patches, axis=0),
+        lift[patches],
+        COVER * atlas.radii[patches],
     )
 
 
@@ -351,9 +355,13 @@ def visible(atlas, index, patches: np.ndarray, points: np.ndarray) -> np.ndarray
         g = patches[test]
         seen = np.ones(len(test), bool)
         k = np.flatnonzero(c.cut[g])
-        seen[k] = ~_blocked(index, atlas.normals[g[k]], c.lift[g[k]], c.anchor[g[k]], points[test[k]])
+        gk = g[k]
+        at = np.take(points, test[k], axis=0)
+        seen[k] = ~_blocked(
+            index, np.take(atlas.normals, gk, axis=0), c.lift[gk], np.take(c.anchor, gk, axis=0), at
+        )
         s = np.flatnonzero(seen)
-        seen[s] = covered(atlas, index, g[s], points[test[s]], c.lift) == c.covered[g[s]]
+        seen[s] = covered(atlas, index, g[s], np.take(points, test[s], axis=0), c.lift) == c.covered[g[s]]
         out[test] = seen
     return out
 
@@ -365,7 +373,7 @@ def seen_members(atlas, index, rows: np.ndarray, cols: np.ndarray, points: np.nd
     if len(check) == 0:
         return member
     seen = member.copy()
-    seen[check] = visible(atlas, index, cols[check], points[check])
+    seen[check] = visible(atlas, index, cols[check], np.take(points, check, axis=0))
     m = int(rows.max()) + 1
     lost = (np.bincount(rows[member], minlength=m) > 0) & ~(np.bincount(rows[seen], minlength=m) > 0)
     return np.where(lost[rows], member, seen)

@@ -500,7 +500,7 @@ class TriangleFrames:
 
     def __init__(self, corners: np.ndarray):
         self.corners = corners = np.asarray(corners, np.float64)
-        a = corners[:, 0]
+        self.first = a = np.ascontiguousarray(corners[:, 0])
         e1, e2 = corners[:, 1] - a, corners[:, 2] - a
         d11, d12, d22 = (np.einsum("kj,kj->k", x, y) for x, y in ((e1, e1), (e1, e2), (e2, e2)))
         den = d11 * d22 - d12 * d12
@@ -516,9 +516,9 @@ class TriangleFrames:
     def coordinates(self, triangles, points) -> np.ndarray:
         """(k, 2) weights of the second and third corners of points (k, 3) on triangles (k,),
         clipped to the triangle (the three weights at least 0, summing to 1)."""
-        d = np.asarray(points, np.float64) - self.corners[triangles, 0]
-        vw = np.matmul(self.rows[triangles], d[:, :, None])[:, :, 0]
-        ok = self.ok[triangles]
+        d = np.asarray(points, np.float64) - np.take(self.first, triangles, axis=0)
+        vw = np.matmul(np.take(self.rows, triangles, axis=0), d[:, :, None])[:, :, 0]
+        ok = np.take(self.ok, triangles)
         first = np.maximum(1.0 - vw[:, 0] - vw[:, 1], 0.0)
         np.maximum(vw, 0.0, out=vw)
         total = first + vw[:, 0] + vw[:, 1]
@@ -540,7 +540,7 @@ def inside(surfaces, points: np.ndarray, triangles) -> np.ndarray:
     """Points (m, 3) moved towards the centroids of their triangles (m,) by INSIDE x the scene
     extent, at most halfway: off every edge of the triangle, so off the plane of a neighbouring face
     that meets it at a concave edge, by far more than the rays' start offset."""
-    c = surfaces.corners[np.asarray(triangles, np.int64)].mean(axis=1)
+    c = np.take(surfaces.corners, np.asarray(triangles, np.int64), axis=0).mean(axis=1)
     to = c - points
     dist = np.linalg.norm(to, axis=1, keepdims=True)
     step = np.minimum(INSIDE * surfaces.extent, 0.5 * dist)

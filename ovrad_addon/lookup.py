@@ -110,8 +110,8 @@ class PatchGrid:
         """Integer cell (m, 3) of each point in its sheet's grid (0 where it is not in it), and
         whether it is (m,) bool; sheets (m,) must be valid sheet indices."""
         pts = np.asarray(points, np.float64).reshape(-1, 3)
-        ijk = np.floor((pts - self.origin[sheets]) / self.cell[sheets, None])
-        inside = np.all((ijk >= 0) & (ijk < self.dims[sheets]), axis=1)
+        ijk = np.floor((pts - np.take(self.origin, sheets, axis=0)) / np.take(self.cell, sheets)[:, None])
+        inside = np.all((ijk >= 0) & (ijk < np.take(self.dims, sheets, axis=0)), axis=1)
         return np.where(inside[:, None], ijk, 0).astype(np.int64), inside
 
     def candidates(self, points: np.ndarray, sheets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -121,8 +121,8 @@ class PatchGrid:
         s = np.where(ok, sheets, 0)
         ijk, inside = self.cells(points, s)
         ok &= inside
-        d = self.dims[s]
-        key = self.offset[s] + ijk[:, 0] + d[:, 0] * (ijk[:, 1] + d[:, 1] * ijk[:, 2])
+        d = np.take(self.dims, s, axis=0)
+        key = np.take(self.offset, s) + ijk[:, 0] + d[:, 0] * (ijk[:, 1] + d[:, 1] * ijk[:, 2])
         pos = np.minimum(np.searchsorted(self.keys, key), max(len(self.keys) - 1, 0))
         if len(self.keys):
             ok &= self.keys[pos] == key
@@ -134,4 +134,4 @@ class PatchGrid:
         total = int(cnt.sum())
         r = np.repeat(rows, cnt)
         at = np.arange(total) - np.repeat(np.cumsum(cnt) - cnt, cnt) + np.repeat(first, cnt)
-        return r, self.patches[at]
+        return r, np.take(self.patches, at)

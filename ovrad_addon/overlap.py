@@ -686,8 +686,9 @@ def overlap_matrix(
         prow = np.concatenate([np.arange(len(quad.owner)), pt])
         pcol = np.concatenate([ids[quad.owner], nb[quad.owner[pt], slot]])
         sheets = np.where(quad.triangle >= 0, atlas.sheet[ids[quad.owner]], -1)
-        member, b = pair_beta(atlas, pcol, quad.points[prow], quad.normals[prow], sheets[prow], atlas.beta)
-        member = seen_members(atlas, index, prow, pcol, quad.points[prow], member)
+        at = np.take(quad.points, prow, axis=0)
+        member, b = pair_beta(atlas, pcol, at, np.take(quad.normals, prow, axis=0), sheets[prow], atlas.beta)
+        member = seen_members(atlas, index, prow, pcol, at, member)
         alpha = alpha_from_pairs(prow, pcol, member, b, (len(quad.owner), n)).tocoo()
         # Sum per (h, i) within the chunk: what is kept is then the size of C, not of the rule.
         part = (
@@ -747,10 +748,11 @@ def alpha_at(atlas, index, points: np.ndarray, triangle: np.ndarray, side) -> cs
     tri = np.asarray(triangle, np.int64)
     side = np.broadcast_to(np.asarray(side), tri.shape)
     sheets = index.sheet_of(tri, side)
-    nrm = index.charts.normals[np.maximum(tri, 0)] * np.where(side < 0, -1.0, 1.0)[:, None]
+    nrm = np.take(index.charts.normals, np.maximum(tri, 0), axis=0) * np.where(side < 0, -1.0, 1.0)[:, None]
     rows, cols = atlas.grid.candidates(pts, sheets)
-    member, b = pair_beta(atlas, cols, pts[rows], nrm[rows], None, atlas.beta)
-    member = seen_members(atlas, index, rows, cols, pts[rows], member)
+    at = np.take(pts, rows, axis=0)
+    member, b = pair_beta(atlas, cols, at, np.take(nrm, rows, axis=0), None, atlas.beta)
+    member = seen_members(atlas, index, rows, cols, at, member)
     return alpha_from_pairs(rows, cols, member, b, (len(pts), len(atlas)))
 
 
@@ -772,8 +774,10 @@ def ray_hits(index, origins: np.ndarray, directions: np.ndarray) -> RayHits:
     t, tri = index.rays.closest_hit(origins, directions, np.inf)
     hit = np.flatnonzero(tri >= 0)
     tri = tri[hit]
-    side = np.where(np.einsum("ij,ij->i", directions[hit], index.charts.normals[tri]) < 0, 1, -1)
-    return RayHits(hit, t[hit], origins[hit] + t[hit, None] * directions[hit], tri, side)
+    d = np.take(directions, hit, axis=0)
+    side = np.where(np.einsum("ij,ij->i", d, np.take(index.charts.normals, tri, axis=0)) < 0, 1, -1)
+    t = t[hit]
+    return RayHits(hit, t, np.take(origins, hit, axis=0) + t[:, None] * d, tri, side)
 
 
 def reconstruct(alpha: csr_matrix, values: np.ndarray) -> np.ndarray:

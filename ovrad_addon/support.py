@@ -24,8 +24,8 @@ def beta_of(
 ) -> tuple[np.ndarray, np.ndarray]:
     """(inside, beta) for points at in-plane coords (x, y) of patches idx, h their height above
     the plane (read by ball patches only; None: 0); beta is 0 outside."""
-    r = patches.radii[idx]
-    shape = patches.shapes[idx]
+    r = np.take(patches.radii, idx)
+    shape = np.take(patches.shapes, idx)
     square = shape == SHAPE_SQUARE
     u, v = x / r, y / r
     d2 = u * u + v * v
@@ -53,29 +53,32 @@ def pair_beta(patches, idx, points, normals, sheets, beta: str) -> tuple[np.ndar
     member = np.zeros(len(idx), bool)
     b = np.zeros(len(idx))
     # Cheap rejections first (sheet, then distance to the centre), full test on what is left.
-    cand = np.flatnonzero(sheets == patches.sheet[idx])
+    cand = np.flatnonzero(sheets == np.take(patches.sheet, idx))
     i = idx[cand]
-    rel = points[cand] - patches.centers[i]
+    rel = np.take(points, cand, axis=0) - np.take(patches.centers, i, axis=0)
     # no member is farther than its bounding radius (with the rim tolerance) in the plane and
     # its thickness off it
-    br = patches.bounding_radii[i] * (1.0 + 10.0 * RIM_TOLERANCE)
-    near = np.einsum("ij,ij->i", rel, rel) <= br * br + patches.thickness[i] ** 2
+    br = np.take(patches.bounding_radii, i) * (1.0 + 10.0 * RIM_TOLERANCE)
+    near = np.einsum("ij,ij->i", rel, rel) <= br * br + np.take(patches.thickness, i) ** 2
     cand = cand[near]
-    member[cand], b[cand] = _same_sheet_beta(patches, i[near], points[cand], normals[cand], beta)
+    member[cand], b[cand] = _same_sheet_beta(
+        patches, i[near], np.take(points, cand, axis=0), np.take(normals, cand, axis=0), beta
+    )
     return member, b
 
 
 def _same_sheet_beta(patches, i, points, normals, beta: str) -> tuple[np.ndarray, np.ndarray]:
     """The full membership test and beta for pairs already known to share their sheet (the
     candidates of a PatchGrid, or what pair_beta's rejections leave)."""
-    rel = points - patches.centers[i]
-    x = np.einsum("ij,ij->i", rel, patches.tangents[i])
-    y = np.einsum("ij,ij->i", rel, patches.bitangents[i])
-    n_i = patches.normals[i]
+    # np.take, not fancy indexing: rows gathered 2-3x faster (this runs at every alpha lookup)
+    rel = points - np.take(patches.centers, i, axis=0)
+    x = np.einsum("ij,ij->i", rel, np.take(patches.tangents, i, axis=0))
+    y = np.einsum("ij,ij->i", rel, np.take(patches.bitangents, i, axis=0))
+    n_i = np.take(patches.normals, i, axis=0)
     h = np.einsum("ij,ij->i", rel, n_i)
     inside, bb = beta_of(patches, i, x, y, beta, h)
-    ok = inside & (np.einsum("ij,ij->i", normals, n_i) >= patches.min_cos[i])
-    ok &= np.abs(h) <= patches.thickness[i]
+    ok = inside & (np.einsum("ij,ij->i", normals, n_i) >= np.take(patches.min_cos, i))
+    ok &= np.abs(h) <= np.take(patches.thickness, i)
     return ok, np.where(ok, bb, 0.0)
 
 
