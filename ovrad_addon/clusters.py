@@ -142,11 +142,11 @@ class Clusters:
             want = np.floor(np.log2(self.far * np.asarray(distance) / (SQRT3 * self.grid.cell[s])))
         at = np.flatnonzero(ok & (want >= FIRST_LEVEL))  # far enough for some level
         s = s[at]
-        ijk, inside = self.grid.cells(np.asarray(points)[at], s)
+        ijk, inside = self.grid.cells(np.take(points, at, axis=0), s)
         at, s, ijk = at[inside], s[inside], ijk[inside]
-        bins = 2 * normal_bin(np.asarray(normals)[at])
+        bins = 2 * normal_bin(np.take(normals, at, axis=0))
         level = np.minimum(want[at], self.top[s]).astype(np.int64)
-        pts = np.asarray(points)[at]
+        pts = np.take(points, at, axis=0)
         # one pass per level present, the hits sorted by level (stable: in their order within it)
         order = np.argsort(level, kind="stable")
         lev = level[order]

@@ -230,7 +230,7 @@ def emitter_irradiance(
     step = max(1, _CHUNK_RAYS // k)
     for r0 in range(0, len(pts), step):
         rs = np.arange(r0, min(len(pts), r0 + step))
-        P, N = pts[rs], nrm[rs]
+        P, N = pts[r0 : r0 + step], nrm[r0 : r0 + step]
         v = src.points[None, :, :] - P[:, None]
         d2 = np.einsum("rsk,rsk->rs", v, v)
         d = np.sqrt(np.maximum(d2, 1e-300))

@@ -202,7 +202,9 @@ def gather_indirect(
             close = np.flatnonzero(w > 0)
             if len(close):
                 sky = None if v.sky is None else v.sky[close]
-                there = _near_values(problem, near, cache, at[close], tri[close], side[close], t[close], sky)
+                there = _near_values(
+                    problem, near, cache, np.take(at, close, axis=0), tri[close], side[close], t[close], sky
+                )
                 there += v.near[close]
                 got[hit[close]] += w[close, None] * (there - got[hit[close]])
         got = got.reshape(-1, rays, 3)
@@ -245,9 +247,10 @@ def _near_values(problem, near: NearField, cache, points, triangles, sides, t, s
     exact = np.flatnonzero(~small)
     if len(exact):
         tri = triangles[exact]
-        normals = index.charts.normals[tri] * sides[exact, None]
+        normals = np.take(index.charts.normals, tri, axis=0) * sides[exact, None]
         sky_at = None if sky is None else sky[exact]
-        H[exact] = direct_irradiance(surfaces, index.rays, near.light, pts[exact], normals, sky_at)[0]
+        at = np.take(pts, exact, axis=0)
+        H[exact] = direct_irradiance(surfaces, index.rays, near.light, at, normals, sky_at)[0]
     return surfaces.reflectance_at(triangles, pts) * H
 
 
@@ -359,13 +362,13 @@ class CornerCache:
         out = np.empty((len(points), 8))
         s = np.flatnonzero(n > 0)
         if len(s):
-            out[s] = self.patch_nodes.at(points[s], triangles[s], sides[s])
+            out[s] = self.patch_nodes.at(np.take(points, s, axis=0), triangles[s], sides[s])
         exact = n == 0
         if t is not None:
             exact |= (n > 1) & (t < LATTICE_REACH * out[:, 6])
         e = np.flatnonzero(exact)
         if len(e):
-            a = alpha_at(problem.atlas, problem.index, points[e], triangles[e], sides[e])
+            a = alpha_at(problem.atlas, problem.index, np.take(points, e, axis=0), triangles[e], sides[e])
             out[e] = _patch_values(problem, a, self.values, self.near)
         sky = None
         if self.near is not None and self.near.light.sky is not None and self.near.sky_seen is not None:

@@ -259,12 +259,14 @@ def gather_transport(
         ray_w = np.repeat(pts.weight[sl] / rays_per_point, rays_per_point)[hit]
         far_part = None
         if clusters is not None:
-            facing = index.charts.normals[tri] * side[:, None]
+            facing = np.take(index.charts.normals, tri, axis=0) * side[:, None]
             linked, col = clusters.columns(points, index.sheet_of(tri, side), facing, t, index.rays)
             far_part = _summed(ray_w[linked], owner[linked], col, (n, clusters.count))
             near = np.ones(len(hit), bool)
             near[linked] = False
-            points, tri, side, owner, ray_w = points[near], tri[near], side[near], owner[near], ray_w[near]
+            near = np.flatnonzero(near)
+            points, tri, side = np.take(points, near, axis=0), tri[near], side[near]
+            owner, ray_w = owner[near], ray_w[near]
         a = alpha_at(atlas, index, points, tri, side).tocoo()
         # summed per (h, k) within the chunk: memory follows G, not rays
         part = _summed(a.data * ray_w[a.row], owner[a.row], a.col, (n, n))
