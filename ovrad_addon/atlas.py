@@ -410,8 +410,7 @@ def _place_all(
     valid = np.flatnonzero(ch.chart >= 0)
     by_chart = valid[np.argsort(ch.chart[valid], kind="stable")]
     n_per = np.bincount(ch.chart[valid], minlength=ch.count)
-    end = np.cumsum(n_per)
-    start = end - n_per
+    start = start_of(n_per)
     out: list[Placed | None] = [None] * len(index.sheet_chart)
     total = 0
     # Clutter sheets: ball patches on a grid (clutter.py).
@@ -472,11 +471,6 @@ def _place_all(
         [k for k in range(len(out)) if out[k] is None and index.flat[index.sheet_chart[k]]], np.int64
     )
     c, side = index.sheet_chart[planar], index.sheet_side[planar]
-    for k, ck, sk in zip(planar, c, side, strict=True):  # each sheet's grid turn, once for all placements
-        if k not in angles:
-            tri = by_chart[start[ck] : end[ck]]
-            corners = s.corners[tri][:, ::-1] if sk < 0 else s.corners[tri]
-            angles[k] = grid_angle(corners, sk * (ch.normals[tri] * ch.areas[tri, None]).sum(axis=0))
     cost = n_per[c] + index.sheet_area[planar] / spacing[planar] ** 2
     which = np.floor((np.cumsum(cost) - cost) / PLANAR_BATCH).astype(np.int64)
     for batch in np.split(np.arange(len(planar)), np.flatnonzero(np.diff(which)) + 1):
@@ -487,9 +481,10 @@ def _place_all(
         owner = np.repeat(np.arange(len(batch)), n_per[cb])
         corners = s.corners[tri]
         corners = np.where((sb[owner] < 0)[:, None, None], corners[:, ::-1], corners)
-        nrm = sb[:, None] * np.add.reduceat(
-            ch.normals[tri] * ch.areas[tri, None], start_of(n_per[cb]), axis=0
-        )
+        first = start_of(n_per[cb])
+        nrm = sb[:, None] * np.add.reduceat(ch.normals[tri] * ch.areas[tri, None], first, axis=0)
+        for j in np.flatnonzero([sheet not in angles for sheet in k]):  # once for all placements
+            angles[k[j]] = grid_angle(corners[first[j] : first[j] + n_per[cb[j]]], nrm[j])
         angle = np.array([angles[j] for j in k])
         got = place_planar_many(
             corners, owner, nrm, spacing[k], settings.overlap, settings.shapes, ext, angle, count_only
