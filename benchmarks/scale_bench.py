@@ -95,7 +95,7 @@ class Production:
 
     def score(self, attribute: str):
         """Relative RMS error over every vertex of every baked object (real_scenes.score); the
-        objects the batch skipped (a topology-changing modifier, by design) are listed."""
+        objects the batch skipped (with a warning) are listed."""
         if self.ref is None:
             return float("nan"), float("nan")
         names = [str(n) for n in self.ref["object_names"]]

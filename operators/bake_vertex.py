@@ -43,66 +43,101 @@ def corner_angles(corners: np.ndarray) -> np.ndarray:
     return out
 
 
+def own_corner_angles(mesh, matrix_world) -> np.ndarray:
+    """(L,) the interior angle at each loop of a mesh as placed by matrix_world: the angles of its
+    loop triangles' corners summed per loop (a quad's corner split over two triangles adds up)."""
+    data = mesh_reader.read_mesh(mesh, matrix_world)
+    angles = corner_angles(data.corners).ravel()
+    return np.bincount(data.loops.ravel(), weights=angles, minlength=len(mesh.loops))
+
+
 class ReceiverBake:
-    """One receiver's evaluated corners, read from bpy; the values are filled in by reconstruct()."""
+    """One receiver's bake points, read from bpy: corners of its evaluated loop triangles, each
+    standing for a loop of the object's own mesh (the values are filled in by reconstruct()).
+
+    Where the modifiers keep the mesh's topology every corner bakes. Where they change it
+    (Subdivision, Array, Boolean, Triangulate, ...), each loop of the mesh bakes at the first
+    evaluated corner that is a copy of it (mesh_reader.read_with_origins; the corner Cycles' own
+    vertex-colour bake picks): on the evaluated surface, at the limit position of a subdivided
+    corner. A vertex with no copy left (cut away by a Boolean) takes the value of the nearest
+    vertex that has one, and a loop with no copy its vertex's value.
+    """
 
     def __init__(self, obj, depsgraph, first_triangle: int, n_triangles: int):
         self.obj = obj
-        data = mesh_reader.read_object(obj, depsgraph)
         orig = obj.data
-        counts = (len(data.vertices), data.n_polygons, len(data.loop_vertices))
-        if counts != (len(orig.vertices), len(orig.polygons), len(orig.loops)) or not np.array_equal(
-            data.loop_vertices, mesh_reader.loop_vertices(orig)
-        ):
-            raise OvradError(
-                f"the modifiers of '{obj.name}' change its topology, so the bake cannot be stored on its "
-                "mesh: apply the modifiers first"
-            )
+        data = mesh_reader.read_object(obj, depsgraph)
+        own = mesh_reader.loop_vertices(orig)
+        self.n_vertices, self.n_loops = len(orig.vertices), len(orig.loops)
+        kept = (len(data.vertices), data.n_polygons) == (self.n_vertices, len(orig.polygons)) and (
+            np.array_equal(data.loop_vertices, own)
+        )
+        if not kept:
+            data, origin = mesh_reader.read_with_origins(obj, depsgraph)
         if len(data.triangles) != n_triangles:
             raise OvradError(f"'{obj.name}' changed since it was read: bake again")
-        self.tri_verts, self.tri_loops = data.triangles, data.loops
+        self.tri_verts = data.triangles  # evaluated vertices: corners of one vertex may share a gather
         self.points = data.corners  # (T, 3, 3)
         self.triangles = first_triangle + np.arange(n_triangles)
-        self.n_vertices, self.n_loops = counts[0], counts[2]
         self.no_area = np.zeros(n_triangles, bool)  # triangles without area (set by reconstruct)
+        if kept:
+            self.corners = np.arange(3 * n_triangles)  # into the (T * 3) corners
+            self.loops = data.loops.ravel()
+            self.angles = corner_angles(self.points).ravel()
+            self.positions = data.vertices
+        else:
+            of_corner = origin[data.loops.ravel()]
+            self.loops, self.corners = np.unique(of_corner, return_index=True)
+            if len(self.loops) and self.loops[0] < 0:
+                self.loops, self.corners = self.loops[1:], self.corners[1:]
+            if len(self.loops) == 0:
+                raise OvradError(
+                    f"the modifiers of '{obj.name}' keep none of its mesh's corners (Remesh and the "
+                    "like), so the bake cannot be stored on its mesh: apply the modifiers first"
+                )
+            self.angles = own_corner_angles(orig, obj.matrix_world)[self.loops]
+            self.positions = mesh_reader.vertex_positions(orig, obj.matrix_world)
+        self.vertices = own[self.loops]
+        self.loop_vertices = own
 
     def reconstruct(self, solution, quantity: str, share: bool = False) -> np.ndarray:
-        """(T, 3, 3) value at each triangle corner, negative ringing clamped to 0. share: the
-        corners of a vertex whose faces turn little share one gather (gather.shared_normals; for
-        the POINT domain, which averages them)."""
+        """(n, 3) value at each bake corner (self.corners), negative ringing clamped to 0. share:
+        the corners of a vertex whose faces turn little share one gather (gather.shared_normals;
+        for the POINT domain, which averages them)."""
         problem = solution.problem
+        c = self.corners
         self.no_area = without_area(problem, self.triangles)
-        sides = np.repeat(bake_sides(problem, self.triangles), 3)
+        sides = np.repeat(bake_sides(problem, self.triangles), 3)[c]
+        at = self.points.reshape(-1, 3)[c]
         # A vertex on a chart's border lies exactly on the rim of the squares placed along it (and,
         # after float32 storage, just outside): step each corner a hair into its triangle.
-        to_centre = self.points.mean(axis=1, keepdims=True) - self.points
-        dist = np.linalg.norm(to_centre, axis=2, keepdims=True)
+        to_centre = np.repeat(self.points.mean(axis=1), 3, axis=0)[c] - at
+        dist = np.linalg.norm(to_centre, axis=1, keepdims=True)
         step = np.minimum(NUDGE * float(np.median(problem.atlas.radii)), 0.5 * dist)
-        pts = (self.points + to_centre * (step / np.maximum(dist, 1e-300))).reshape(-1, 3)
+        pts = at + to_centre * (step / np.maximum(dist, 1e-300))
         # The final gather starts from the corners themselves (it steps into the triangle on its
         # own), so the corners of one vertex on one face (normal and side) share one gather. Corners
         # go by vertex, so a vertex's corners fall into one chunk.
-        at = self.points.reshape(-1, 3)
-        order = np.argsort(self.tri_verts.ravel(), kind="stable")
-        tris = np.repeat(self.triangles, 3)
+        verts = self.tri_verts.ravel()[c]
+        order = np.argsort(verts, kind="stable")
+        tris = np.repeat(self.triangles, 3)[c]
         # ... except at a vertex on a contact line (a floor vertex where a wall stands on it): there
         # each corner gathers from inside its own triangle, lit or hidden as its face is.
         normals = bake_normals(problem, tris, sides)
-        split = split_corners(problem.index, self.tri_verts.ravel(), at, pts, normals)
+        split = split_corners(problem.index, verts, at, pts, normals)
         at = np.where(split[:, None], pts, at)
         # A vertex's corners on one side (not split, with area) may share one gather for their faces'
         # normals, weighted as domain_values weighs them (gather.shared_normals), chunk by chunk: the
         # normals of every shared gather are held for the chunk's corners only.
         group = None
         if share:
-            sliver = np.repeat(self.no_area, 3)
-            group = np.where(split | sliver, -1, self.tri_verts.ravel() * 2 + (sides < 0))
-            angles = corner_angles(self.points).ravel()
+            sliver = np.repeat(self.no_area, 3)[c]
+            group = np.where(split | sliver, -1, verts * 2 + (sides < 0))
         fn = irradiance_at if quantity == "IRRADIANCE" else radiance_at
         out = np.empty((len(pts), 3))
         for s in range(0, len(pts), CHUNK):
             k = order[s : s + CHUNK]
-            spread = None if group is None else shared_normals(group[k], normals[k], angles[k])
+            spread = None if group is None else shared_normals(group[k], normals[k], self.angles[k])
             out[k] = fn(
                 problem,
                 solution.radiosity,
@@ -115,25 +150,42 @@ class ReceiverBake:
                 gather_normals=spread,
             )
         # Smooth beta rings slightly below 0 next to contact shadows; light is never negative.
-        return np.maximum(out, 0.0).reshape(-1, 3, 3)
+        return np.maximum(out, 0.0)
 
     def domain_values(self, corner_values: np.ndarray, domain: str) -> np.ndarray:
-        """(n, 3) per vertex (angle-weighted mean of its corners) or per face corner (loop). Corners
-        of triangles without area weigh nothing where a vertex has others (three points on a line
-        have angles 0, 0 and pi: the middle one would outweigh the faces around it)."""
-        w = (corner_angles(self.points) * ~self.no_area[:, None]).ravel()
-        target, n = (self.tri_verts, self.n_vertices) if domain == "POINT" else (self.tri_loops, self.n_loops)
-        idx = target.ravel()
-        den = np.bincount(idx, weights=w, minlength=n)
-        cnt = np.bincount(idx, minlength=n)
+        """(n, 3) per vertex (angle-weighted mean of its corners) or per face corner (loop) of the
+        object's own mesh, from the values (m, 3) at the bake corners. Corners of triangles without
+        area weigh nothing where a vertex has others (three points on a line have angles 0, 0 and
+        pi: the middle one would outweigh the faces around it). A vertex no corner stands for takes
+        the value of the nearest one that has some, a loop its vertex's value."""
         vals = corner_values.reshape(-1, 3)
+        w = self.angles * ~np.repeat(self.no_area, 3)[self.corners]
+        point, has = self._means(self.vertices, self.n_vertices, w, vals)
+        if not has.all() and has.any():
+            from scipy.spatial import cKDTree
+
+            known = np.flatnonzero(has)
+            _, nearest = cKDTree(self.positions[known]).query(self.positions[~has])
+            point[~has] = point[known[nearest]]
+        if domain == "POINT":
+            return point
+        loop, has = self._means(self.loops, self.n_loops, w, vals)
+        loop[~has] = point[self.loop_vertices[~has]]
+        return loop
+
+    @staticmethod
+    def _means(target: np.ndarray, n: int, w: np.ndarray, vals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(n, 3) the w-weighted mean of vals per target index (the plain mean where all weights
+        are 0), and (n,) whether any value went to it."""
+        den = np.bincount(target, weights=w, minlength=n)
+        cnt = np.bincount(target, minlength=n)
         out = np.zeros((n, 3))
         for c in range(3):
-            num = np.bincount(idx, weights=w * vals[:, c], minlength=n)
-            plain = np.bincount(idx, weights=vals[:, c], minlength=n)
+            num = np.bincount(target, weights=w * vals[:, c], minlength=n)
+            plain = np.bincount(target, weights=vals[:, c], minlength=n)
             # Corners of triangles without area only (all weights 0): a plain mean.
             out[:, c] = np.where(den > 0, num / np.maximum(den, 1e-300), plain / np.maximum(cnt, 1))
-        return out
+        return out, cnt > 0
 
 
 def alike(values: list[np.ndarray]) -> bool:

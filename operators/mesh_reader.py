@@ -8,6 +8,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..ovrad_addon.errors import OvradError
+from . import attributes
 
 
 @dataclass(frozen=True)
@@ -116,6 +117,12 @@ def read_mesh(
     return placed(local, matrix_world)
 
 
+def vertex_positions(mesh, matrix_world) -> np.ndarray:
+    """(V, 3) float64 world positions of a mesh's vertices placed by matrix_world (4 x 4)."""
+    m = np.array(matrix_world, dtype=np.float64)
+    return _get(mesh.vertices, "co", 3, np.float32).astype(np.float64) @ m[:3, :3].T + m[:3, 3]
+
+
 def placed(data: MeshData, matrix_world) -> MeshData:
     """MeshData moved by matrix_world (4 x 4): one mesh read once, placed for each of its instances."""
     m = np.array(matrix_world, dtype=np.float64)
@@ -147,3 +154,86 @@ def read_object(obj, depsgraph, uv_map: str | None = None) -> MeshData:
     """The evaluated mesh of a mesh object (modifiers applied) in world space; its materials are
     the object's material slots (else the mesh's)."""
     return read_evaluated(obj.evaluated_get(depsgraph), uv_map)
+
+
+# Blender's Python API has no map from an evaluated mesh back to the original one (Cycles' vertex-
+# colour bake reads CD_ORIGINDEX in C). The map is carried through the modifiers instead, by
+# temporary attributes on the original mesh: each loop's and each vertex's own index, and a random
+# float32 tag of it. Modifiers copy or blend attributes like any others; an element copied from one
+# original element keeps its index and that index's tag, while one blended from several rounds its
+# index to some integer whose tag the blended tag almost surely is not (a chance of about 1e-7).
+ORIGIN_ATTRIBUTES = (
+    ".ovrad_origin_loop",
+    ".ovrad_origin_loop_tag",
+    ".ovrad_origin_vert",
+    ".ovrad_origin_vert_tag",
+)
+ORIGIN_SEED = 0x0DD5EED
+
+
+def _copies(mesh, index_name: str, tag_name: str, tags: np.ndarray) -> np.ndarray | None:
+    """(n,) int64 the original element each element of an evaluated mesh copies, -1 where none;
+    None where the modifiers dropped the attributes."""
+    try:
+        got = attributes.read_attribute(mesh, index_name).astype(np.int64)
+        got_tag = attributes.read_attribute(mesh, tag_name)
+    except KeyError:
+        return None
+    ok = (got >= 0) & (got < len(tags))
+    ok[ok] = got_tag[ok] == tags[got[ok]]
+    return np.where(ok, got, -1)
+
+
+def read_with_origins(obj, depsgraph) -> tuple[MeshData, np.ndarray]:
+    """The evaluated mesh of a mesh object, as read_object() reads it, and (L_eval,) int64: for each
+    of its loops, the loop of the object's own mesh it is a copy of, or -1 (a loop the modifiers
+    made, or blended from several, or whose vertex is no copy of that loop's vertex).
+
+    A Subdivision modifier keeps a copy of every original corner (at the limit surface), Array and
+    Mirror several, a Boolean those it does not cut away; a modifier that rebuilds the surface
+    (Remesh) keeps none. The temporary attributes (ORIGIN_ATTRIBUTES) are removed before this
+    returns, also on error, and the depsgraph is evaluated again without them.
+    """
+    mesh = obj.data
+    n_loops, n_verts = len(mesh.loops), len(mesh.vertices)
+    clash = [name for name in ORIGIN_ATTRIBUTES if mesh.attributes.get(name) is not None]
+    if clash:
+        raise OvradError(f"the mesh of '{obj.name}' has an attribute named '{clash[0]}': rename it to bake")
+    rng = np.random.default_rng(ORIGIN_SEED)
+    loop_tags = rng.random(n_loops, np.float32)
+    vert_tags = rng.random(n_verts, np.float32)
+    made = []
+    try:
+        for name, kind, domain, values in zip(
+            ORIGIN_ATTRIBUTES,
+            ("INT", "FLOAT", "INT", "FLOAT"),
+            ("CORNER", "CORNER", "POINT", "POINT"),
+            (np.arange(n_loops, dtype=np.int32), loop_tags, np.arange(n_verts, dtype=np.int32), vert_tags),
+            strict=True,
+        ):
+            made.append(name)
+            attributes.write_attribute(mesh, name, values, kind, domain)
+        mesh.update()
+        depsgraph.update()
+        ev = obj.evaluated_get(depsgraph)
+        evaluated = ev.to_mesh()
+        try:
+            slots = [s.material for s in ev.material_slots] or list(evaluated.materials)
+            data = read_mesh(evaluated, ev.matrix_world, owner=ev.name, materials=slots)
+            loops = _copies(evaluated, ORIGIN_ATTRIBUTES[0], ORIGIN_ATTRIBUTES[1], loop_tags)
+            verts = _copies(evaluated, ORIGIN_ATTRIBUTES[2], ORIGIN_ATTRIBUTES[3], vert_tags)
+        finally:
+            ev.to_mesh_clear()
+    finally:
+        for name in made:
+            attributes.remove_attribute(mesh, name)
+        if made:
+            mesh.update()
+            depsgraph.update()
+    if loops is None or verts is None:
+        return data, np.full(len(data.loop_vertices), -1, np.int64)
+    # a loop is a copy only where its vertex is a copy of that loop's vertex
+    own = loop_vertices(mesh)
+    keep = loops >= 0
+    keep[keep] = verts[data.loop_vertices[keep]] == own[loops[keep]]
+    return data, np.where(keep, loops, -1)

@@ -1,5 +1,5 @@
 """Bake Vertex Colors through the installed extension: domains, quantities, replacing only its own
-attribute, never a user's, topology-changing modifiers, and baking before solving."""
+attribute, never a user's, meshes under topology-changing modifiers, and baking before solving."""
 
 from __future__ import annotations
 
@@ -137,14 +137,143 @@ def test_an_attribute_the_user_made_or_changed_under_a_baked_name_is_kept(solved
     assert tuple(mesh.attributes["painted"].data[0].color) == (1.0, 0.0, 0.0, 1.0)
 
 
-def test_topology_changing_modifiers_are_refused_with_what_to_do(box):
-    box.modifiers.new("Subdivision", "SUBSURF")
-    bpy.ops.ovrad.generate_atlas()  # the atlas of the subdivided surface
-    assert bpy.ops.ovrad.solve() == {"FINISHED"}
-    attributes = sorted(a.name for a in box.data.attributes)
+def lit_box(modifiers=(), lamp_at=(0.45, 0.3, 0.5)):
+    """A 2 m box seen from inside (reflectance RHO, 2 x 2 quads a face) lit by a point lamp (off its
+    centre by default), with these (type, settings) modifiers, selected; patches 300."""
+    bpy.context.scene.ovrad.patch_count = 300
+    bpy.context.scene.ovrad.solve_tolerance = 1e-4
+    obj = closed_box(cuts=1)
+    obj.data.materials.clear()
+    obj.data.materials.append(blender_scenes.principled("grey", (RHO,) * 3))
+    for kind, settings in modifiers:
+        mod = obj.modifiers.new(kind.title(), kind)
+        for key, value in settings.items():
+            setattr(mod, key, value)
+    light = bpy.data.lights.new("Lamp", "POINT")
+    light.energy = 200.0
+    lamp = bpy.data.objects.new("Lamp", light)
+    lamp.location = lamp_at
+    bpy.context.scene.collection.objects.link(lamp)
+    blender_scenes.select(obj)
+    return obj
+
+
+SIMPLE_SPLIT = (
+    ("SUBSURF", {"subdivision_type": "SIMPLE", "levels": 1, "render_levels": 1}),
+    ("TRIANGULATE", {}),
+)
+
+
+def test_origins_are_the_loops_the_modifiers_copied(ovrad, fresh_scene):
+    """Simple subdivision keeps each original corner where it was; an array copies each loop once
+    per element, moved by its offset; the temporary attributes that carry the map are gone after."""
+    reader = ovrad.operators.mesh_reader
+    obj = lit_box(SIMPLE_SPLIT)
+    before = sorted(a.name for a in obj.data.attributes)
+    own = reader.vertex_positions(obj.data, obj.matrix_world)[reader.loop_vertices(obj.data)]
+    data, origin = reader.read_with_origins(obj, bpy.context.evaluated_depsgraph_get())
+    assert sorted(a.name for a in obj.data.attributes) == before
+    mapped = origin >= 0
+    assert set(origin[mapped]) == set(range(len(obj.data.loops)))
+    # where it was, to float32 rounding (OpenSubdiv evaluates the corners too)
+    np.testing.assert_allclose(data.vertices[data.loop_vertices[mapped]], own[origin[mapped]], atol=1e-6)
+    # loops the subdivision made (on the new edge and face points) copy none
+    assert mapped.sum() < len(origin) and len(data.vertices) == 26 + 48 + 24
+    obj.modifiers.clear()
+    array = obj.modifiers.new("Array", "ARRAY")
+    array.count, array.use_relative_offset, array.use_constant_offset = 3, False, True
+    array.constant_offset_displace = (5.0, 0.0, 0.0)
+    data, origin = reader.read_with_origins(obj, bpy.context.evaluated_depsgraph_get())
+    assert np.all(origin >= 0) and np.all(np.bincount(origin) == 3)
+    shift = data.vertices[data.loop_vertices] - own[origin]
+    np.testing.assert_allclose(shift[:, 1:], 0.0, atol=1e-6)
+    assert set(np.round(shift[:, 0], 4)) == {0.0, 5.0, 10.0}
+
+
+def test_a_subdivided_box_bakes_each_corner_as_the_applied_mesh_does_there(ovrad, fresh_scene):
+    """A mesh under topology-changing modifiers is baked at the evaluated corners that copy its own
+    (Cycles' rule): against the same box with the modifiers applied (the same triangles, so the same
+    atlas and solve), each corner's value is the value of one of the applied mesh's corners at that
+    spot on that face, and each vertex's value that of the applied mesh's vertex there."""
+    obj = lit_box(SIMPLE_SPLIT)
+    # the same box with its modifiers applied (baked below)
+    applied = bpy.data.meshes.new_from_object(obj.evaluated_get(bpy.context.evaluated_depsgraph_get()))
+    assert bpy.ops.ovrad.generate_atlas() == {"FINISHED"} and bpy.ops.ovrad.solve() == {"FINISHED"}
+    assert bpy.ops.ovrad.bake_vertex(domain="CORNER", attribute="c") == {"FINISHED"}
+    assert bpy.ops.ovrad.bake_vertex(domain="POINT", attribute="p") == {"FINISHED"}
+    mesh = obj.data
+    corner, point = colors(mesh, "c")[:, :3], colors(mesh, "p")[:, :3]
+    assert len(corner) == len(mesh.loops) == 96 and len(point) == len(mesh.vertices) == 26
+    assert np.all(point > 0.0) and np.ptp(point[:, 0]) > 0.2 * point[:, 0].max()  # lit unevenly
+    positions = np.array([v.co for v in mesh.vertices])
+    face_normal = np.array([mesh.polygons[i].normal for i in range(len(mesh.polygons))])
+    loop_face = np.repeat(np.arange(len(mesh.polygons)), [p.loop_total for p in mesh.polygons])
+    loop_vertex = np.array([lp.vertex_index for lp in mesh.loops])
+
+    obj.modifiers.clear()
+    obj.data = applied
+    blender_scenes.select(obj)
+    assert bpy.ops.ovrad.generate_atlas() == {"FINISHED"} and bpy.ops.ovrad.solve() == {"FINISHED"}
+    assert bpy.ops.ovrad.bake_vertex(domain="CORNER", attribute="c") == {"FINISHED"}
+    assert bpy.ops.ovrad.bake_vertex(domain="POINT", attribute="p") == {"FINISHED"}
+    a_corner, a_point = colors(applied, "c")[:, :3], colors(applied, "p")[:, :3]
+    a_positions = np.array([v.co for v in applied.vertices])
+    a_normal = np.array([p.normal for p in applied.polygons])
+    a_loop_face = np.repeat(np.arange(len(applied.polygons)), [p.loop_total for p in applied.polygons])
+    a_loop_vertex = np.array([lp.vertex_index for lp in applied.loops])
+    for v in range(len(positions)):
+        (same,) = np.flatnonzero(np.all(np.abs(a_positions - positions[v]) < 1e-6, axis=1))
+        # each vertex: both bakes gather there along the same normals; the corners they average
+        # are nudged 1e-3 patch radii into different triangles
+        np.testing.assert_allclose(point[v], a_point[same], rtol=1e-3)
+        for lp in np.flatnonzero(loop_vertex == v):
+            there = (a_loop_vertex == same) & np.all(
+                np.abs(a_normal[a_loop_face] - face_normal[loop_face[lp]]) < 1e-5, axis=1
+            )
+            assert there.any()
+            assert np.any(np.all(np.abs(a_corner[there] - corner[lp]) <= 1e-6 * corner[lp], axis=1))
+
+
+def test_a_vertex_a_boolean_cuts_away_takes_its_nearest_neighbours_value(ovrad, fresh_scene):
+    obj = lit_box(())
+    import bmesh
+
+    cube = bpy.data.meshes.new("Cutter")
+    bm = bmesh.new()
+    bmesh.ops.create_cube(bm, size=0.8)
+    bm.to_mesh(cube)
+    bm.free()
+    cutter = bpy.data.objects.new("Cutter", cube)
+    cutter.location = (1.0, 1.0, 1.0)  # over one corner of the box
+    cutter.hide_render = True
+    bpy.context.scene.collection.objects.link(cutter)
+    cut = obj.modifiers.new("Cut", "BOOLEAN")
+    cut.object, cut.operation = cutter, "DIFFERENCE"
+    # the float solver keeps the box's faces facing in (the exact one turns an inside-out box out)
+    solvers = {item.identifier for item in cut.bl_rna.properties["solver"].enum_items}
+    cut.solver = "FLOAT" if "FLOAT" in solvers else "FAST"
+    blender_scenes.select(obj)
+    before = sorted(a.name for a in obj.data.attributes)
+    assert bpy.ops.ovrad.generate_atlas() == {"FINISHED"} and bpy.ops.ovrad.solve() == {"FINISHED"}
+    assert bpy.ops.ovrad.bake_vertex() == {"FINISHED"}
+    assert sorted(a.name for a in obj.data.attributes) == sorted([*before, "ovrad_radiance"])
+    values = colors(obj.data, "ovrad_radiance")[:, :3]
+    positions = np.array([v.co for v in obj.data.vertices])
+    (gone,) = np.flatnonzero(np.all(positions == 1.0, axis=1))  # the corner inside the cutter
+    others = np.delete(np.arange(len(positions)), gone)
+    dist = np.linalg.norm(positions[others] - positions[gone], axis=1)
+    nearest = others[dist <= dist.min() + 1e-6]  # the box is symmetric: three are as near
+    assert np.all(values > 0.0) and any(np.array_equal(values[gone], values[n]) for n in nearest)
+
+
+def test_modifiers_that_keep_none_of_the_mesh_are_refused_with_what_to_do(ovrad, fresh_scene):
+    # a voxel remesh faces the box out: lit from above
+    obj = lit_box((("REMESH", {"mode": "VOXEL", "voxel_size": 0.25}),), lamp_at=(0.0, 0.0, 3.0))
+    assert bpy.ops.ovrad.generate_atlas() == {"FINISHED"} and bpy.ops.ovrad.solve() == {"FINISHED"}
+    attributes = sorted(a.name for a in obj.data.attributes)
     with pytest.raises(RuntimeError, match="apply the modifiers first"):
         bpy.ops.ovrad.bake_vertex()
-    assert sorted(a.name for a in box.data.attributes) == attributes
+    assert sorted(a.name for a in obj.data.attributes) == attributes
 
 
 def test_baking_before_solving_says_to_solve(box):
@@ -185,12 +314,14 @@ def test_corners_of_a_triangle_without_area_do_not_darken_the_vertex_they_share(
     # vertex 0 is a corner of a right triangle (0, 1, 2) and the middle of the line (3, 0, 4);
     # vertices 3 and 4 belong to the line only
     pos = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [-1, -1, 0], [1, 1, 0]], float)
-    bake.tri_verts = np.array([[0, 1, 2], [3, 0, 4]])
-    bake.tri_loops = np.arange(6).reshape(2, 3)
-    bake.points = pos[bake.tri_verts]
+    tri_verts = np.array([[0, 1, 2], [3, 0, 4]])
+    bake.corners = bake.loops = np.arange(6)
+    bake.vertices = bake.loop_vertices = tri_verts.ravel()
+    bake.positions = pos
+    bake.angles = ovrad.operators.bake_vertex.corner_angles(pos[tri_verts]).ravel()
     bake.n_vertices, bake.n_loops = 5, 6
     bake.no_area = np.array([False, True])
-    corner = np.array([[1.0, 1.0, 1.0], [0.2, 0.0, 0.4]])[:, :, None] * np.ones(3)
+    corner = np.array([1.0, 1.0, 1.0, 0.2, 0.0, 0.4])[:, None] * np.ones(3)  # (corner, channel)
     got = bake.domain_values(corner, "POINT")[:, 0]
     np.testing.assert_allclose(got, [1.0, 1.0, 1.0, 0.2, 0.4])
     # without the rule (all three corners weighed by angle): vertex 0 read (pi/2 + 0) / (pi/2 + pi)
