@@ -59,8 +59,8 @@ class ReceiverBake:
     (Subdivision, Array, Boolean, Triangulate, ...), each loop of the mesh bakes at the first
     evaluated corner that is a copy of it (mesh_reader.read_with_origins; the corner Cycles' own
     vertex-colour bake picks): on the evaluated surface, at the limit position of a subdivided
-    corner. A vertex with no copy left (cut away by a Boolean) takes the value of the nearest
-    vertex that has one, and a loop with no copy its vertex's value.
+    corner. A vertex with no copy left (bevelled, or cut away by a Boolean) bakes at the evaluated
+    vertex nearest to it (Cycles leaves it black), and a loop with no copy takes its vertex's value.
     """
 
     def __init__(self, obj, depsgraph, first_triangle: int, n_triangles: int):
@@ -86,18 +86,37 @@ class ReceiverBake:
             self.angles = corner_angles(self.points).ravel()
             self.positions = data.vertices
         else:
-            of_corner = origin[data.loops.ravel()]
-            self.loops, self.corners = np.unique(of_corner, return_index=True)
-            if len(self.loops) and self.loops[0] < 0:
-                self.loops, self.corners = self.loops[1:], self.corners[1:]
-            if len(self.loops) == 0:
+            if origin is None:
                 raise OvradError(
-                    f"the modifiers of '{obj.name}' keep none of its mesh's corners (Remesh and the "
-                    "like), so the bake cannot be stored on its mesh: apply the modifiers first"
+                    f"the modifiers of '{obj.name}' drop its mesh's attributes (Remesh and the like), so "
+                    "colours baked on the mesh would not show: apply the modifiers first"
                 )
-            self.angles = own_corner_angles(orig, obj.matrix_world)[self.loops]
             self.positions = mesh_reader.vertex_positions(orig, obj.matrix_world)
-        self.vertices = own[self.loops]
+            loops, corners = np.unique(origin[data.loops.ravel()], return_index=True)
+            keep = loops >= 0
+            loops, corners = loops[keep], corners[keep]
+            vertices = own[loops]
+            angles = own_corner_angles(orig, obj.matrix_world)[loops]
+            # A vertex with no copy left (bevelled, cut away by a Boolean) bakes at the evaluated
+            # vertex nearest to it, as the mean of that vertex's corners.
+            missing = np.setdiff1d(np.arange(self.n_vertices), vertices)
+            flat = data.triangles.ravel()
+            if len(missing) and len(flat):
+                from scipy.spatial import cKDTree
+
+                order = np.argsort(flat, kind="stable")
+                used = np.unique(flat)
+                _, k = cKDTree(data.vertices[used]).query(self.positions[missing])
+                lo = np.searchsorted(flat[order], used[k], "left")
+                count = np.searchsorted(flat[order], used[k], "right") - lo
+                start = np.repeat(lo - (np.cumsum(count) - count), count)
+                extra = order[start + np.arange(count.sum())]
+                corners = np.concatenate([corners, extra])
+                loops = np.concatenate([loops, np.full(len(extra), -1)])
+                vertices = np.concatenate([vertices, np.repeat(missing, count)])
+                angles = np.concatenate([angles, corner_angles(self.points).ravel()[extra]])
+            self.corners, self.loops, self.angles = corners, loops, angles
+        self.vertices = own[self.loops] if kept else vertices
         self.loop_vertices = own
 
     def reconstruct(self, solution, quantity: str, share: bool = False) -> np.ndarray:
@@ -169,7 +188,8 @@ class ReceiverBake:
             point[~has] = point[known[nearest]]
         if domain == "POINT":
             return point
-        loop, has = self._means(self.loops, self.n_loops, w, vals)
+        of_loop = self.loops >= 0  # corners standing for a vertex only have no loop
+        loop, has = self._means(self.loops[of_loop], self.n_loops, w[of_loop], vals[of_loop])
         loop[~has] = point[self.loop_vertices[~has]]
         return loop
 

@@ -184,15 +184,16 @@ def _copies(mesh, index_name: str, tag_name: str, tags: np.ndarray) -> np.ndarra
     return np.where(ok, got, -1)
 
 
-def read_with_origins(obj, depsgraph) -> tuple[MeshData, np.ndarray]:
+def read_with_origins(obj, depsgraph) -> tuple[MeshData, np.ndarray | None]:
     """The evaluated mesh of a mesh object, as read_object() reads it, and (L_eval,) int64: for each
     of its loops, the loop of the object's own mesh it is a copy of, or -1 (a loop the modifiers
-    made, or blended from several, or whose vertex is no copy of that loop's vertex).
+    made, or blended from several, or whose vertex is no copy of that loop's vertex); None where the
+    modifiers drop the mesh's attributes (a voxel Remesh: colours baked on the mesh would not show).
 
     A Subdivision modifier keeps a copy of every original corner (at the limit surface), Array and
-    Mirror several, a Boolean those it does not cut away; a modifier that rebuilds the surface
-    (Remesh) keeps none. The temporary attributes (ORIGIN_ATTRIBUTES) are removed before this
-    returns, also on error, and the depsgraph is evaluated again without them.
+    Mirror several, a Boolean those it does not cut away, a Bevel those off its bevelled edges.
+    The temporary attributes (ORIGIN_ATTRIBUTES) are removed before this returns, also on error,
+    and the depsgraph is evaluated again without them.
     """
     mesh = obj.data
     n_loops, n_verts = len(mesh.loops), len(mesh.vertices)
@@ -231,7 +232,7 @@ def read_with_origins(obj, depsgraph) -> tuple[MeshData, np.ndarray]:
             mesh.update()
             depsgraph.update()
     if loops is None or verts is None:
-        return data, np.full(len(data.loop_vertices), -1, np.int64)
+        return data, None
     # a loop is a copy only where its vertex is a copy of that loop's vertex
     own = loop_vertices(mesh)
     keep = loops >= 0
