@@ -46,6 +46,7 @@ class DirectLight:
     sky_samples: int = 1024
     sky_patches: np.ndarray | None = None
     emitter_samples: int = 0  # the emitters' samples per point when not `samples` (0: samples)
+    area_jittered: bool = False  # area lamps: each stratum jittered per point (lights.jittered_area_samples)
 
 
 def triangle_normals(surfaces: Surfaces, triangles: np.ndarray) -> np.ndarray:
@@ -563,7 +564,9 @@ def direct_irradiance(
     if light.lamps:
         for c0 in range(0, len(pts), _CHUNK_RAYS):
             sl = slice(c0, c0 + _CHUNK_RAYS)
-            h, n = lamp_irradiance(light.lamps, pts[sl], nrm[sl], rays, surfaces.extent, light.samples)
+            h, n = lamp_irradiance(
+                light.lamps, pts[sl], nrm[sl], rays, surfaces.extent, light.samples, light.area_jittered
+            )
             H[sl] += h
             cast += n
     if light.emitters is not None and np.any(light.emitters):

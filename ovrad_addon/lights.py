@@ -115,6 +115,52 @@ def area_samples(lamp: Lamp, per_side: int = 8) -> tuple[np.ndarray, np.ndarray]
     return p + u[:, None] * t + v[:, None] * b, np.full(u.size, lamp_area(lamp.shape, sx, sy) / u.size)
 
 
+def point_hash(points: np.ndarray, salt: int = 0) -> np.ndarray:
+    """(m, 2) numbers in [0, 1) that depend only on each point's coordinates (their float64 bits,
+    mixed) and on salt: the same point gets the same pair on any thread, in any chunk."""
+    bits = np.ascontiguousarray(points, np.float64).reshape(-1, 3).view(np.uint64)
+    h = bits[:, 0] * np.uint64(0x9E3779B97F4A7C15)
+    h ^= bits[:, 1] * np.uint64(0xC2B2AE3D27D4EB4F)
+    h ^= bits[:, 2] * np.uint64(0x165667B19E3779F9)
+    h ^= np.uint64((salt * 0xD6E8FEB86659FD93) & 0xFFFFFFFFFFFFFFFF)
+    for shift, mult in ((30, 0xBF58476D1CE4E5B9), (27, 0x94D049BB133111EB)):  # splitmix64's finaliser
+        h ^= h >> np.uint64(shift)
+        h *= np.uint64(mult)
+    h ^= h >> np.uint64(31)
+    scale = 1.0 / (1 << 32)
+    return np.column_stack([(h >> np.uint64(32)) * scale, (h & np.uint64(0xFFFFFFFF)) * scale])
+
+
+def jittered_area_samples(lamp: Lamp, per_side: int, points: np.ndarray):
+    """The stratified rule of area_samples with each stratum's point placed anywhere in its
+    stratum, by a hash of the receiver point and the stratum (point_hash): yields (points (m, 3),
+    area weight) per stratum. A fixed rule puts every receiver's penumbra on the same few steps;
+    jittered, the steps fall elsewhere at each receiver and average out over many of them (a final
+    gather's near hits), and each receiver's own estimate stays stratified."""
+    d = np.asarray(lamp.direction, float)
+    d = d / np.linalg.norm(d)
+    t = np.asarray(lamp.tangent, float)
+    t = t - d * (t @ d)
+    t /= np.linalg.norm(t)
+    b = np.cross(d, t)
+    sx, sy = _lamp_sides(lamp.shape, lamp.size_x, lamp.size_y)
+    p = np.asarray(lamp.position, float)
+    square = lamp.shape in ("SQUARE", "RECTANGLE")
+    cols = per_side if square else 2 * per_side
+    weight = lamp_area(lamp.shape, sx, sy) / (per_side * cols)
+    for i in range(per_side):
+        for j in range(cols):
+            su, sv = point_hash(points, i * cols + j).T
+            if square:
+                u = ((i + su) / per_side - 0.5) * sx
+                v = ((j + sv) / per_side - 0.5) * sy
+            else:  # disk or ellipse: equal-area rings, as area_samples
+                r = np.sqrt((i + su) / per_side)
+                th = 2 * np.pi * (j + sv - 0.5 + 0.5 * (i % 2)) / cols
+                u, v = 0.5 * sx * r * np.cos(th), 0.5 * sy * r * np.sin(th)
+            yield p + u[:, None] * t + v[:, None] * b, weight
+
+
 def shadow_origin(points: np.ndarray, normals: np.ndarray, directions: np.ndarray, eps: float) -> np.ndarray:
     """Where a shadow ray from surface points starts: off the surface along the normal and along
     the ray. A point on a concave edge (a wall's foot) lies in the neighbouring face's plane too;
@@ -208,12 +254,30 @@ def area_side(samples: int) -> int:
     return int(np.clip(round(2.0 * np.sqrt(max(samples, 1))), 2, 8))
 
 
+def jittered_area_side(samples: int) -> int:
+    """Points per side of a jittered area lamp rule for `samples` shadow rays per point: about
+    sqrt(samples) (3 x 3 for 8), at least 2 x 2. The fixed rule (area_side) takes four times as
+    many to keep its steps small; jittered, they average out instead. A final gather's near hits
+    under a 4 m area lamp (16 808 vertices of 300 bevelled boxes on a floor; each bake against the
+    same bake with a jittered 12 x 12 rule): fixed 6 x 6 (the rule before) 0.26 % in 45 s, fixed
+    8 x 8 0.16 % in 66 s, fixed 3 x 3 0.83 %, jittered 3 x 3 0.16 % in 23 s, 4 x 4 0.11 % in 30 s."""
+    return int(np.clip(round(np.sqrt(max(samples, 1))), 2, 8))
+
+
 def lamp_irradiance(
-    lamps, points: np.ndarray, normals: np.ndarray, rays, extent: float, samples: int = 16
+    lamps,
+    points: np.ndarray,
+    normals: np.ndarray,
+    rays,
+    extent: float,
+    samples: int = 16,
+    jittered: bool = False,
 ) -> tuple[np.ndarray, int]:
     """Direct irradiance (m, 3) in W/m^2 at points with unit normals, shadowed; and rays cast.
     samples: shadow rays per point for a lamp with a radius or a sun with an angle; an area lamp
-    takes area_side(samples)^2 (64 at the defaults, fewer only under a ray budget)."""
+    takes area_side(samples)^2 (64 at the defaults, fewer only under a ray budget). jittered: an
+    area lamp's strata are jittered per point (jittered_area_samples), for points whose light is
+    averaged over many of them; jittered_area_side(samples)^2 points then."""
     pts = np.asarray(points, np.float64)
     nrm = np.asarray(normals, np.float64)
     total = np.zeros((len(pts), 3))
@@ -240,11 +304,13 @@ def lamp_irradiance(
             e[np.flatnonzero(lit)[~blocked]] = lamp.power * cos[lit][~blocked]
             total += e[:, None] * color
             continue
-        if lamp.kind == "AREA":
-            src, w = area_samples(lamp, area_side(samples))
+        if lamp.kind == "AREA" and jittered:
+            rule = jittered_area_samples(lamp, jittered_area_side(samples), pts)
+        elif lamp.kind == "AREA":
+            rule = zip(*area_samples(lamp, area_side(samples)), strict=True)
         else:
-            src, w = np.asarray(lamp.position, float)[None], np.ones(1)
-        for s, ws in zip(src, w, strict=True):
+            rule = [(np.asarray(lamp.position, float), 1.0)]
+        for s, ws in rule:
             v = s - pts
             d2 = np.einsum("ij,ij->i", v, v)
             d = np.sqrt(np.maximum(d2, 1e-300))

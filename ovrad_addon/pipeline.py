@@ -704,6 +704,7 @@ def _at_points(
                         problem.surfaces, light, min(light.samples, NEAR_PICKED_SAMPLES), few
                     ),
                     sky_samples=min(light.sky_samples, NEAR_SKY_SAMPLES),
+                    area_jittered=True,
                 )
                 near = NearField(near_light, radiosity - first_shot - coeffs, coeffs - own, sky_seen=seen)
             at = pts if gather_points is None else np.asarray(gather_points, np.float64).reshape(-1, 3)
