@@ -63,17 +63,22 @@ class ReceiverBake:
     vertex nearest to it (Cycles leaves it black), and a loop with no copy takes its vertex's value.
     """
 
-    def __init__(self, obj, depsgraph, first_triangle: int, n_triangles: int):
+    def __init__(self, obj, depsgraph, first_triangle: int, n_triangles: int, origins=None):
+        """origins: what mesh_reader.read_with_origins gave for obj if its modifiers change its
+        topology (read here when not given), else None."""
         self.obj = obj
         orig = obj.data
-        data = mesh_reader.read_object(obj, depsgraph)
         own = mesh_reader.loop_vertices(orig)
         self.n_vertices, self.n_loops = len(orig.vertices), len(orig.loops)
-        kept = (len(data.vertices), data.n_polygons) == (self.n_vertices, len(orig.polygons)) and (
-            np.array_equal(data.loop_vertices, own)
-        )
-        if not kept:
-            data, origin = mesh_reader.read_with_origins(obj, depsgraph)
+        if origins is None and not mesh_reader.same_topology(obj, depsgraph):
+            origins = mesh_reader.read_with_origins([obj], depsgraph)[obj.name]
+        if isinstance(origins, OvradError):
+            raise origins
+        kept = origins is None
+        if kept:
+            data = mesh_reader.read_object(obj, depsgraph)
+        else:
+            data, origin = origins
         if len(data.triangles) != n_triangles:
             raise OvradError(f"'{obj.name}' changed since it was read: bake again")
         self.tri_verts = data.triangles  # evaluated vertices: corners of one vertex may share a gather
@@ -229,6 +234,13 @@ def bake_meshes(context, solution, name: str, domain: str, quantity: str) -> tup
     surfaces = solution.problem.surfaces
     users: dict = {}  # mesh -> [(object, values)]
     warnings = []
+    # receivers whose modifiers change their topology: their maps to their own meshes, read together
+    changed = [
+        o
+        for o in solution.receivers
+        if o.data.library is None and not mesh_reader.same_topology(o, depsgraph)
+    ]
+    origins = mesh_reader.read_with_origins(changed, depsgraph) if changed else {}
     for i, obj in enumerate(solution.receivers):
         mesh = obj.data
         try:
@@ -236,7 +248,7 @@ def bake_meshes(context, solution, name: str, domain: str, quantity: str) -> tup
                 raise OvradError(f"the mesh of '{obj.name}' is linked from a library: make it local first")
             attributes.check_target(mesh, name)
             n_tri = int(np.sum(surfaces.object_index == i))
-            bake = ReceiverBake(obj, depsgraph, solution.first_triangle[i], n_tri)
+            bake = ReceiverBake(obj, depsgraph, solution.first_triangle[i], n_tri, origins.get(obj.name))
             values = bake.domain_values(bake.reconstruct(solution, quantity, domain == "POINT"), domain)
         except OvradError as e:
             warnings.append(f"'{obj.name}' not baked: {e}")

@@ -184,57 +184,90 @@ def _copies(mesh, index_name: str, tag_name: str, tags: np.ndarray) -> np.ndarra
     return np.where(ok, got, -1)
 
 
-def read_with_origins(obj, depsgraph) -> tuple[MeshData, np.ndarray | None]:
-    """The evaluated mesh of a mesh object, as read_object() reads it, and (L_eval,) int64: for each
-    of its loops, the loop of the object's own mesh it is a copy of, or -1 (a loop the modifiers
-    made, or blended from several, or whose vertex is no copy of that loop's vertex); None where the
-    modifiers drop the mesh's attributes (a voxel Remesh: colours baked on the mesh would not show).
+def same_topology(obj, depsgraph) -> bool:
+    """Whether a mesh object's modifiers keep its mesh's vertices, faces and loops as they are."""
+    mesh, ev = obj.data, obj.evaluated_get(depsgraph).data
+    counts = (len(mesh.vertices), len(mesh.polygons), len(mesh.loops))
+    if (len(ev.vertices), len(ev.polygons), len(ev.loops)) != counts:
+        return False
+    return bool(np.array_equal(loop_vertices(ev), loop_vertices(mesh)))
+
+
+def read_with_origins(objects, depsgraph) -> dict:
+    """{object name: (MeshData, origin) or OvradError} for mesh objects: each one's evaluated mesh,
+    as read_object() reads it, and origin (L_eval,) int64: for each of its loops, the loop of the
+    object's own mesh it is a copy of, or -1 (a loop the modifiers made, or blended from several,
+    or whose vertex is no copy of that loop's vertex); origin None where the modifiers drop the
+    mesh's attributes (a voxel Remesh: colours baked on the mesh would not show).
 
     A Subdivision modifier keeps a copy of every original corner (at the limit surface), Array and
     Mirror several, a Boolean those it does not cut away, a Bevel those off its bevelled edges.
-    The temporary attributes (ORIGIN_ATTRIBUTES) are removed before this returns, also on error,
-    and the depsgraph is evaluated again without them.
+    Every mesh gets its temporary attributes (ORIGIN_ATTRIBUTES) at once and the depsgraph is
+    evaluated once for all of them (linked duplicates share a mesh: one update per object would
+    evaluate every user each time); they are removed before this returns, also on error, and the
+    depsgraph is evaluated again without them.
     """
-    mesh = obj.data
-    n_loops, n_verts = len(mesh.loops), len(mesh.vertices)
-    clash = [name for name in ORIGIN_ATTRIBUTES if mesh.attributes.get(name) is not None]
-    if clash:
-        raise OvradError(f"the mesh of '{obj.name}' has an attribute named '{clash[0]}': rename it to bake")
-    rng = np.random.default_rng(ORIGIN_SEED)
-    loop_tags = rng.random(n_loops, np.float32)
-    vert_tags = rng.random(n_verts, np.float32)
-    made = []
+    out: dict = {}
+    tags: dict = {}  # mesh -> (loop tags, vertex tags)
+    made: list = []  # (mesh, attribute name)
     try:
-        for name, kind, domain, values in zip(
-            ORIGIN_ATTRIBUTES,
-            ("INT", "FLOAT", "INT", "FLOAT"),
-            ("CORNER", "CORNER", "POINT", "POINT"),
-            (np.arange(n_loops, dtype=np.int32), loop_tags, np.arange(n_verts, dtype=np.int32), vert_tags),
-            strict=True,
-        ):
-            made.append(name)
-            attributes.write_attribute(mesh, name, values, kind, domain)
-        mesh.update()
+        for obj in objects:
+            mesh = obj.data
+            if mesh in tags or obj.name in out:
+                continue
+            clash = [name for name in ORIGIN_ATTRIBUTES if mesh.attributes.get(name) is not None]
+            if clash:
+                out[obj.name] = OvradError(
+                    f"the mesh of '{obj.name}' has an attribute named '{clash[0]}': rename it to bake"
+                )
+                continue
+            rng = np.random.default_rng(ORIGIN_SEED)
+            n_loops, n_verts = len(mesh.loops), len(mesh.vertices)
+            tags[mesh] = (rng.random(n_loops, np.float32), rng.random(n_verts, np.float32))
+            for name, kind, domain, values in zip(
+                ORIGIN_ATTRIBUTES,
+                ("INT", "FLOAT", "INT", "FLOAT"),
+                ("CORNER", "CORNER", "POINT", "POINT"),
+                (
+                    np.arange(n_loops, dtype=np.int32),
+                    tags[mesh][0],
+                    np.arange(n_verts, dtype=np.int32),
+                    tags[mesh][1],
+                ),
+                strict=True,
+            ):
+                made.append((mesh, name))
+                attributes.write_attribute(mesh, name, values, kind, domain)
+            mesh.update()
+        if not tags:
+            return out
         depsgraph.update()
-        ev = obj.evaluated_get(depsgraph)
-        evaluated = ev.to_mesh()
-        try:
-            slots = [s.material for s in ev.material_slots] or list(evaluated.materials)
-            data = read_mesh(evaluated, ev.matrix_world, owner=ev.name, materials=slots)
-            loops = _copies(evaluated, ORIGIN_ATTRIBUTES[0], ORIGIN_ATTRIBUTES[1], loop_tags)
-            verts = _copies(evaluated, ORIGIN_ATTRIBUTES[2], ORIGIN_ATTRIBUTES[3], vert_tags)
-        finally:
-            ev.to_mesh_clear()
+        for obj in objects:
+            if obj.name in out or obj.data not in tags:
+                continue
+            loop_tags, vert_tags = tags[obj.data]
+            ev = obj.evaluated_get(depsgraph)
+            evaluated = ev.to_mesh()
+            try:
+                slots = [s.material for s in ev.material_slots] or list(evaluated.materials)
+                data = read_mesh(evaluated, ev.matrix_world, owner=ev.name, materials=slots)
+                loops = _copies(evaluated, ORIGIN_ATTRIBUTES[0], ORIGIN_ATTRIBUTES[1], loop_tags)
+                verts = _copies(evaluated, ORIGIN_ATTRIBUTES[2], ORIGIN_ATTRIBUTES[3], vert_tags)
+            finally:
+                ev.to_mesh_clear()
+            if loops is None or verts is None:
+                out[obj.name] = (data, None)
+                continue
+            # a loop is a copy only where its vertex is a copy of that loop's vertex
+            own = loop_vertices(obj.data)
+            keep = loops >= 0
+            keep[keep] = verts[data.loop_vertices[keep]] == own[loops[keep]]
+            out[obj.name] = (data, np.where(keep, loops, -1))
     finally:
-        for name in made:
+        for mesh, name in made:
             attributes.remove_attribute(mesh, name)
         if made:
-            mesh.update()
+            for mesh in tags:
+                mesh.update()
             depsgraph.update()
-    if loops is None or verts is None:
-        return data, None
-    # a loop is a copy only where its vertex is a copy of that loop's vertex
-    own = loop_vertices(mesh)
-    keep = loops >= 0
-    keep[keep] = verts[data.loop_vertices[keep]] == own[loops[keep]]
-    return data, np.where(keep, loops, -1)
+    return out

@@ -171,7 +171,7 @@ def test_origins_are_the_loops_the_modifiers_copied(ovrad, fresh_scene):
     obj = lit_box(SIMPLE_SPLIT)
     before = sorted(a.name for a in obj.data.attributes)
     own = reader.vertex_positions(obj.data, obj.matrix_world)[reader.loop_vertices(obj.data)]
-    data, origin = reader.read_with_origins(obj, bpy.context.evaluated_depsgraph_get())
+    data, origin = reader.read_with_origins([obj], bpy.context.evaluated_depsgraph_get())[obj.name]
     assert sorted(a.name for a in obj.data.attributes) == before
     mapped = origin >= 0
     assert set(origin[mapped]) == set(range(len(obj.data.loops)))
@@ -183,7 +183,7 @@ def test_origins_are_the_loops_the_modifiers_copied(ovrad, fresh_scene):
     array = obj.modifiers.new("Array", "ARRAY")
     array.count, array.use_relative_offset, array.use_constant_offset = 3, False, True
     array.constant_offset_displace = (5.0, 0.0, 0.0)
-    data, origin = reader.read_with_origins(obj, bpy.context.evaluated_depsgraph_get())
+    data, origin = reader.read_with_origins([obj], bpy.context.evaluated_depsgraph_get())[obj.name]
     assert np.all(origin >= 0) and np.all(np.bincount(origin) == 3)
     shift = data.vertices[data.loop_vertices] - own[origin]
     np.testing.assert_allclose(shift[:, 1:], 0.0, atol=1e-6)
