@@ -124,10 +124,13 @@ class ReceiverBake:
         self.vertices = own[self.loops] if kept else vertices
         self.loop_vertices = own
 
-    def reconstruct(self, solution, quantity: str, share: bool = False) -> np.ndarray:
+    def reconstruct(
+        self, solution, quantity: str, share: bool = False, corner_cache: dict | None = None
+    ) -> np.ndarray:
         """(n, 3) value at each bake corner (self.corners), negative ringing clamped to 0. share:
         the corners of a vertex whose faces turn little share one gather (gather.shared_normals;
-        for the POINT domain, which averages them)."""
+        for the POINT domain, which averages them). corner_cache: a dict kept over one bake's
+        receivers and chunks (gather.gather_indirect)."""
         problem = solution.problem
         c = self.corners
         self.no_area = without_area(problem, self.triangles)
@@ -172,6 +175,7 @@ class ReceiverBake:
                 solution.light,
                 gather_points=at[k],
                 gather_normals=spread,
+                corner_cache=corner_cache,
             )
         # Smooth beta rings slightly below 0 next to contact shadows; light is never negative.
         return np.maximum(out, 0.0)
@@ -241,6 +245,7 @@ def bake_meshes(context, solution, name: str, domain: str, quantity: str) -> tup
         if o.data.library is None and not mesh_reader.same_topology(o, depsgraph)
     ]
     origins = mesh_reader.read_with_origins(changed, depsgraph) if changed else {}
+    shared: dict = {}  # the gathers' corner cache, one for the whole bake
     for i, obj in enumerate(solution.receivers):
         mesh = obj.data
         try:
@@ -249,7 +254,9 @@ def bake_meshes(context, solution, name: str, domain: str, quantity: str) -> tup
             attributes.check_target(mesh, name)
             n_tri = int(np.sum(surfaces.object_index == i))
             bake = ReceiverBake(obj, depsgraph, solution.first_triangle[i], n_tri, origins.get(obj.name))
-            values = bake.domain_values(bake.reconstruct(solution, quantity, domain == "POINT"), domain)
+            values = bake.domain_values(
+                bake.reconstruct(solution, quantity, domain == "POINT", shared), domain
+            )
         except OvradError as e:
             warnings.append(f"'{obj.name}' not baked: {e}")
             continue

@@ -134,6 +134,7 @@ def gather_indirect(
     near: NearField | None = None,
     corner_alpha: float = CORNER_ALPHA,
     spread: np.ndarray | None = None,
+    corner_cache: dict | None = None,
 ) -> np.ndarray:
     """Indirect irradiance (m, 3) in W/m^2 at points (m, 3) with unit normals (m, 3).
 
@@ -153,6 +154,9 @@ def gather_indirect(
     N_j; the light from below n's horizon but above an N_j's, which no ray samples, is taken as the
     light of the lowest rays (those under 20 degrees of elevation, at least one; exact under an even
     sky and for light from above every horizon).
+    corner_cache: a dict the caller keeps across calls with the same problem, radiosity, emission
+    and near field (one bake's receivers and chunks): they share one CornerCache, whose nodes are
+    then filled once for all of them (a floor's lattice under many objects) and built once.
     """
     pts = np.asarray(points, np.float64).reshape(-1, 3)
     nrm = np.asarray(normals, np.float64).reshape(-1, 3)
@@ -177,7 +181,12 @@ def gather_indirect(
     _ = atlas.grid  # build the lookup once, before the threads need it
     step = max(1, chunk_rays // rays)
     starts = list(range(0, m, step))
-    cache = CornerCache(problem, values, near, corner_alpha, rays)
+    key = (id(problem), rays, corner_alpha)
+    cache = None if corner_cache is None else corner_cache.get(key)
+    if cache is None:
+        cache = CornerCache(problem, values, near, corner_alpha, rays)
+        if corner_cache is not None:
+            corner_cache[key] = cache
 
     def chunk(k: int):
         sl = slice(starts[k], min(m, starts[k] + step))
@@ -637,6 +646,7 @@ def gather_unique(
     progress: Callable[[float], None] | None = None,
     near: NearField | None = None,
     spread: np.ndarray | None = None,
+    corner_cache: dict | None = None,
 ) -> np.ndarray:
     """gather_indirect once per distinct (position, normal) (within 1e-7 of the scene extent),
     scattered back to every point: repeated points cost one gather (from the first one's
@@ -650,6 +660,16 @@ def gather_unique(
         spread = np.asarray(spread, np.float64)
         spread = spread.reshape(len(inverse), spread.shape[-2], 3)[first]
     out = gather_indirect(
-        problem, radiosity, emission, pts, nrm, rays, tri, progress, near=near, spread=spread
+        problem,
+        radiosity,
+        emission,
+        pts,
+        nrm,
+        rays,
+        tri,
+        progress,
+        near=near,
+        spread=spread,
+        corner_cache=corner_cache,
     )
     return out[inverse]

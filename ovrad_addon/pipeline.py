@@ -663,6 +663,7 @@ def _at_points(
     gather_points=None,
     indirect=None,
     gather_normals=None,
+    corner_cache=None,
 ):
     """What both reconstructions need at surface points: triangles (m,), alpha (m, n), the
     coefficients the patches reconstruct, and the direct irradiance (m, 3) computed at the points
@@ -670,7 +671,8 @@ def _at_points(
     gather casts its rays from (default: the points), gathered once per distinct position and normal;
     indirect (m, 3): the gathered irradiance itself, computed by the caller (e.g. at fewer points
     and interpolated), used instead of gathering; gather_normals (m, k, 3): the weighted normals each
-    point's gather stands for (gather.shared_normals; default: the point's own normal)."""
+    point's gather stands for (gather.shared_normals; default: the point's own normal). corner_cache:
+    see gather.gather_indirect (a dict kept over one bake's calls)."""
     tri = np.asarray(triangles, np.int64)
     pts = np.asarray(points, np.float64).reshape(-1, 3)
     side = np.broadcast_to(np.asarray(sides), tri.shape)
@@ -709,13 +711,34 @@ def _at_points(
                 near = NearField(near_light, radiosity - first_shot - coeffs, coeffs - own, sky_seen=seen)
             at = pts if gather_points is None else np.asarray(gather_points, np.float64).reshape(-1, 3)
             if gather_normals is None:
-                H = H + gather_unique(problem, radiosity, own, at, normals, light.gather_rays, tri, near=near)
+                H = H + gather_unique(
+                    problem,
+                    radiosity,
+                    own,
+                    at,
+                    normals,
+                    light.gather_rays,
+                    tri,
+                    near=near,
+                    corner_cache=corner_cache,
+                )
             else:
                 spread = np.asarray(gather_normals, np.float64)
                 spread = spread.reshape(len(pts), spread.shape[-2], 3)
                 axis = gather_axis(spread)
                 rays = light.gather_rays
-                H = H + gather_unique(problem, radiosity, own, at, axis, rays, tri, near=near, spread=spread)
+                H = H + gather_unique(
+                    problem,
+                    radiosity,
+                    own,
+                    at,
+                    axis,
+                    rays,
+                    tri,
+                    near=near,
+                    spread=spread,
+                    corner_cache=corner_cache,
+                )
         covered = (index.sheet_of(tri, side) >= 0) | without_area(problem, tri)  # see bake_normals
     # --- end of final gather
     return tri, a, coeffs, np.where(covered[:, None], H, 0.0)
@@ -732,6 +755,7 @@ def radiance_at(
     gather_points=None,
     indirect=None,
     gather_normals=None,
+    corner_cache=None,
 ) -> np.ndarray:
     """Outgoing radiance L = B / pi (m, 3) reconstructed at surface points; 0 where no patch covers.
 
@@ -739,9 +763,10 @@ def radiance_at(
     where they are (shadow rays) and only the rest of the radiosity from the patches. The light a
     point reflects is its own albedo (surfaces.reflectance_at: a texture's where there is one)
     times the irradiance there. gather_points, indirect, gather_normals: where and about what the
-    final gather casts, or its result (see _at_points).
+    final gather casts, or its result; corner_cache: a dict kept over one bake's calls (see
+    _at_points).
     """
-    gather = (gather_points, indirect, gather_normals)
+    gather = (gather_points, indirect, gather_normals, corner_cache)
     tri, a, coeffs, H = _at_points(problem, radiosity, points, triangles, sides, first_shot, light, *gather)
     surfaces = problem.surfaces
     albedo = surfaces.reflectance_at(tri, np.asarray(points, np.float64).reshape(-1, 3))
@@ -779,12 +804,13 @@ def irradiance_at(
     gather_points=None,
     indirect=None,
     gather_normals=None,
+    corner_cache=None,
 ) -> np.ndarray:
     """Light arriving at surface points without the surface's albedo: H / pi (m, 3), in the units
     of radiance (a white surface's radiance), from B(M) - E(M) = rho(M) H(M); 0 where rho is 0
     (direct light at the points where it is split off, as in radiance_at). On a textured triangle
     the patches' reflected light is divided by the triangle's mean albedo, what they hold."""
-    gather = (gather_points, indirect, gather_normals)
+    gather = (gather_points, indirect, gather_normals, corner_cache)
     tri, a, coeffs, H = _at_points(problem, radiosity, points, triangles, sides, first_shot, light, *gather)
     E = patch_emission(problem, light.emission_scale if light is not None else 1.0)
     reflected = reconstruct(a, coeffs - E)

@@ -503,6 +503,43 @@ def test_near_field_does_not_depend_on_threads_or_chunks(block):
     np.testing.assert_array_equal(one, many)
 
 
+def test_calls_sharing_a_corner_cache_give_what_one_call_gives(block):
+    """A bake's receivers and chunks gather in separate calls; with one corner_cache dict they share
+    one CornerCache (built once, its nodes filled once for all) and give, bit for bit, what one call
+    over all their points gives."""
+    s, problem = block
+    lamp = Lamp(kind="POINT", position=(2.0, 0.5, 2.5), power=300.0)
+    state = solve(problem, (lamp,), SolveSettings())
+    light = direct_light(problem, (lamp,))
+    E = patch_emission(problem)
+    near = NearField(light, state.radiosity - state.first_shot - E, np.zeros_like(E))
+    rng = np.random.default_rng(8)
+    pts = np.column_stack([rng.uniform(-1.4, 2.4, 300), rng.uniform(-1.4, 2.4, 300), np.zeros(300)])
+    pts = pts[(pts[:, 0] < -0.01) | (pts[:, 0] > 1.01) | (pts[:, 1] < -0.01) | (pts[:, 1] > 1.01)]
+    tri = floor_triangles(s, pts)
+    normals = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
+    whole = gather_indirect(problem, state.radiosity, E, pts, normals, 64, tri, near=near)
+    shared: dict = {}
+    half = len(pts) // 2
+    parts = [
+        gather_indirect(
+            problem, state.radiosity, E, pts[sl], normals[sl], 64, tri[sl], near=near, corner_cache=shared
+        )
+        for sl in (slice(0, half), slice(half, None))
+    ]
+    assert len(shared) == 1
+    (cache,) = shared.values()
+    filled = cache.patch_nodes.count
+    assert filled > 0 and np.any(whole > 0)
+    np.testing.assert_array_equal(np.concatenate(parts), whole)
+    # asked again, every node is there already
+    again = gather_indirect(
+        problem, state.radiosity, E, pts, normals, 64, tri, near=near, corner_cache=shared
+    )
+    assert cache.patch_nodes.count == filled
+    np.testing.assert_array_equal(again, whole)
+
+
 def test_lattice_reproduces_linear_values_and_fills_each_node_once():
     """Values linear in position are reproduced exactly anywhere on a triangle (each lattice cell
     interpolates linearly between its nodes); each node is computed once, whatever the order asked;
