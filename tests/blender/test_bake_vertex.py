@@ -164,6 +164,7 @@ SIMPLE_SPLIT = (
 )
 
 
+@pytest.mark.versions
 def test_origins_are_the_loops_the_modifiers_copied(ovrad, fresh_scene):
     """Simple subdivision keeps each original corner where it was; an array copies each loop once
     per element, moved by its offset; the temporary attributes that carry the map are gone after."""
@@ -190,6 +191,7 @@ def test_origins_are_the_loops_the_modifiers_copied(ovrad, fresh_scene):
     assert set(np.round(shift[:, 0], 4)) == {0.0, 5.0, 10.0}
 
 
+@pytest.mark.versions
 def test_a_subdivided_box_bakes_each_corner_as_the_applied_mesh_does_there(ovrad, fresh_scene):
     """A mesh under topology-changing modifiers is baked at the evaluated corners that copy its own
     (Cycles' rule): against the same box with the modifiers applied (the same triangles, so the same
@@ -259,6 +261,7 @@ def cut(obj):
     boolean.solver = "FLOAT" if "FLOAT" in solvers else "FAST"
 
 
+@pytest.mark.versions
 @pytest.mark.parametrize("modify", [bevelled, cut], ids=["bevel", "boolean"])
 def test_a_vertex_without_a_copy_bakes_at_the_evaluated_vertex_nearest_it(ovrad, fresh_scene, modify):
     """A bevel replaces the box's corners and edge vertices, a boolean cuts one corner away: those
