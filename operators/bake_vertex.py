@@ -65,19 +65,20 @@ class ReceiverBake:
 
     def __init__(self, obj, depsgraph, first_triangle: int, n_triangles: int, origins=None):
         """origins: what mesh_reader.read_with_origins gave for obj if its modifiers change its
-        topology (read here when not given), else None."""
+        topology, else None (then read here if they do after all)."""
         self.obj = obj
         orig = obj.data
         own = mesh_reader.loop_vertices(orig)
         self.n_vertices, self.n_loops = len(orig.vertices), len(orig.loops)
-        if origins is None and not mesh_reader.same_topology(obj, depsgraph):
-            origins = mesh_reader.read_with_origins([obj], depsgraph)[obj.name]
+        if origins is None:
+            data = mesh_reader.read_object(obj, depsgraph)
+            counts = (len(data.vertices), data.n_polygons)
+            if counts != (self.n_vertices, len(orig.polygons)) or not np.array_equal(data.loop_vertices, own):
+                origins = mesh_reader.read_with_origins([obj], depsgraph)[obj.name]
         if isinstance(origins, OvradError):
             raise origins
         kept = origins is None
-        if kept:
-            data = mesh_reader.read_object(obj, depsgraph)
-        else:
+        if not kept:
             data, origin = origins
         if len(data.triangles) != n_triangles:
             raise OvradError(f"'{obj.name}' changed since it was read: bake again")
@@ -90,6 +91,7 @@ class ReceiverBake:
             self.loops = data.loops.ravel()
             self.angles = corner_angles(self.points).ravel()
             self.positions = data.vertices
+            self.vertices = own[self.loops]
         else:
             if origin is None:
                 raise OvradError(
@@ -120,8 +122,7 @@ class ReceiverBake:
                 loops = np.concatenate([loops, np.full(len(extra), -1)])
                 vertices = np.concatenate([vertices, np.repeat(missing, count)])
                 angles = np.concatenate([angles, corner_angles(self.points).ravel()[extra]])
-            self.corners, self.loops, self.angles = corners, loops, angles
-        self.vertices = own[self.loops] if kept else vertices
+            self.corners, self.loops, self.angles, self.vertices = corners, loops, angles, vertices
         self.loop_vertices = own
 
     def reconstruct(

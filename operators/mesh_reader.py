@@ -247,14 +247,9 @@ def read_with_origins(objects, depsgraph) -> dict:
                 continue
             loop_tags, vert_tags = tags[obj.data]
             ev = obj.evaluated_get(depsgraph)
-            evaluated = ev.to_mesh()
-            try:
-                slots = [s.material for s in ev.material_slots] or list(evaluated.materials)
-                data = read_mesh(evaluated, ev.matrix_world, owner=ev.name, materials=slots)
-                loops = _copies(evaluated, ORIGIN_ATTRIBUTES[0], ORIGIN_ATTRIBUTES[1], loop_tags)
-                verts = _copies(evaluated, ORIGIN_ATTRIBUTES[2], ORIGIN_ATTRIBUTES[3], vert_tags)
-            finally:
-                ev.to_mesh_clear()
+            data = read_evaluated(ev)
+            loops = _copies(ev.data, ORIGIN_ATTRIBUTES[0], ORIGIN_ATTRIBUTES[1], loop_tags)
+            verts = _copies(ev.data, ORIGIN_ATTRIBUTES[2], ORIGIN_ATTRIBUTES[3], vert_tags)
             if loops is None or verts is None:
                 out[obj.name] = (data, None)
                 continue

@@ -91,14 +91,20 @@ def spot_falloff(cos_angle: np.ndarray, spot_size: float, blend: float) -> np.nd
     return f * f * (3.0 - 2.0 * f)
 
 
-def area_samples(lamp: Lamp, per_side: int = 8) -> tuple[np.ndarray, np.ndarray]:
-    """Stratified points on an area lamp's surface: (points (k, 3), area weights (k,))."""
+def _lamp_axes(lamp: Lamp) -> tuple[np.ndarray, np.ndarray]:
+    """An area lamp's unit X and Y axes in world space (its tangent made orthogonal to its
+    direction, and direction x tangent)."""
     d = np.asarray(lamp.direction, float)
     d = d / np.linalg.norm(d)
     t = np.asarray(lamp.tangent, float)
     t = t - d * (t @ d)
     t /= np.linalg.norm(t)
-    b = np.cross(d, t)
+    return t, np.cross(d, t)
+
+
+def area_samples(lamp: Lamp, per_side: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """Stratified points on an area lamp's surface: (points (k, 3), area weights (k,))."""
+    t, b = _lamp_axes(lamp)
     sx, sy = _lamp_sides(lamp.shape, lamp.size_x, lamp.size_y)
     g = (np.arange(per_side) + 0.5) / per_side - 0.5
     if lamp.shape in ("SQUARE", "RECTANGLE"):
@@ -137,12 +143,7 @@ def jittered_area_samples(lamp: Lamp, per_side: int, points: np.ndarray):
     area weight) per stratum. A fixed rule puts every receiver's penumbra on the same few steps;
     jittered, the steps fall elsewhere at each receiver and average out over many of them (a final
     gather's near hits), and each receiver's own estimate stays stratified."""
-    d = np.asarray(lamp.direction, float)
-    d = d / np.linalg.norm(d)
-    t = np.asarray(lamp.tangent, float)
-    t = t - d * (t @ d)
-    t /= np.linalg.norm(t)
-    b = np.cross(d, t)
+    t, b = _lamp_axes(lamp)
     sx, sy = _lamp_sides(lamp.shape, lamp.size_x, lamp.size_y)
     p = np.asarray(lamp.position, float)
     square = lamp.shape in ("SQUARE", "RECTANGLE")

@@ -482,19 +482,26 @@ def test_corner_light_interpolates_exact_corner_values():
     assert np.all(corners.light_at(pts, tri, -np.ones(len(tri), np.int64)) == 0.0)
 
 
-def test_near_field_does_not_depend_on_threads_or_chunks(block):
-    """Corner light is filled by whichever chunk asks first; the result must not depend on it."""
+def lamp_over_floor(block, seed: int):
+    """The block scene solved under a point lamp, its near field, and about 300 floor points
+    (seeded) off the block's footprint with their triangles and up normals."""
     s, problem = block
     lamp = Lamp(kind="POINT", position=(2.0, 0.5, 2.5), power=300.0)
     state = solve(problem, (lamp,), SolveSettings())
     light = direct_light(problem, (lamp,))
     E = patch_emission(problem)
     near = NearField(light, state.radiosity - state.first_shot - E, np.zeros_like(E))
-    rng = np.random.default_rng(5)
+    rng = np.random.default_rng(seed)
     pts = np.column_stack([rng.uniform(-1.4, 2.4, 300), rng.uniform(-1.4, 2.4, 300), np.zeros(300)])
     pts = pts[(pts[:, 0] < -0.01) | (pts[:, 0] > 1.01) | (pts[:, 1] < -0.01) | (pts[:, 1] > 1.01)]
     tri = floor_triangles(s, pts)
     normals = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
+    return problem, state, E, near, pts, tri, normals
+
+
+def test_near_field_does_not_depend_on_threads_or_chunks(block):
+    """Corner light is filled by whichever chunk asks first; the result must not depend on it."""
+    problem, state, E, near, pts, tri, normals = lamp_over_floor(block, seed=5)
     one = gather_indirect(problem, state.radiosity, E, pts, normals, 64, tri, near=near, workers=1)
     many = gather_indirect(
         problem, state.radiosity, E, pts, normals, 64, tri, near=near, workers=2, chunk_rays=640
@@ -507,17 +514,7 @@ def test_calls_sharing_a_corner_cache_give_what_one_call_gives(block):
     """A bake's receivers and chunks gather in separate calls; with one corner_cache dict they share
     one CornerCache (built once, its nodes filled once for all) and give, bit for bit, what one call
     over all their points gives."""
-    s, problem = block
-    lamp = Lamp(kind="POINT", position=(2.0, 0.5, 2.5), power=300.0)
-    state = solve(problem, (lamp,), SolveSettings())
-    light = direct_light(problem, (lamp,))
-    E = patch_emission(problem)
-    near = NearField(light, state.radiosity - state.first_shot - E, np.zeros_like(E))
-    rng = np.random.default_rng(8)
-    pts = np.column_stack([rng.uniform(-1.4, 2.4, 300), rng.uniform(-1.4, 2.4, 300), np.zeros(300)])
-    pts = pts[(pts[:, 0] < -0.01) | (pts[:, 0] > 1.01) | (pts[:, 1] < -0.01) | (pts[:, 1] > 1.01)]
-    tri = floor_triangles(s, pts)
-    normals = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
+    problem, state, E, near, pts, tri, normals = lamp_over_floor(block, seed=8)
     whole = gather_indirect(problem, state.radiosity, E, pts, normals, 64, tri, near=near)
     shared: dict = {}
     half = len(pts) // 2
