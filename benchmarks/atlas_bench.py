@@ -24,9 +24,7 @@ OUT = ROOT / "benchmarks" / "results" / "atlas.csv"
 def one(count: int, beta: str) -> dict:
     sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
     import scenes
-    from ovrad_addon.atlas import build_atlas
-    from ovrad_addon.rays import has_embree
-    from ovrad_addon.settings import AtlasSettings
+    from ovrad_addon import AtlasSettings, build_atlas, has_embree
 
     s = scenes.cornell()
     marks = {}

@@ -51,7 +51,7 @@ def build_npz(folder: Path) -> Path:
 def load_surfaces(npz: Path):
     import numpy as np
 
-    from ovrad_addon.surfaces import Surfaces
+    from ovrad_addon import Surfaces
 
     d = np.load(npz)
     return Surfaces.from_arrays(
@@ -68,17 +68,17 @@ def run_placement(surfaces, count: int) -> dict:
     """Index and placement only, as build_atlas does them (spacing corrected once)."""
     import numpy as np
 
+    from ovrad_addon import AtlasSettings
     from ovrad_addon import atlas as atlas_mod
-    from ovrad_addon.settings import AtlasSettings
 
     settings = AtlasSettings(patch_count=count)
     t0 = time.perf_counter()
     index = atlas_mod.index_surfaces(surfaces, settings)
     t_index = time.perf_counter() - t0
     t0 = time.perf_counter()
-    spacing = atlas_mod._sheet_spacing(index, settings)
-    placed, total = atlas_mod._place_all(index, settings, spacing)
-    placed, total = atlas_mod._place_all(index, settings, spacing * np.sqrt(total / count))
+    spacing = atlas_mod.sheet_spacing(index, settings)
+    placed, total = atlas_mod.place_all(index, settings, spacing)
+    placed, total = atlas_mod.place_all(index, settings, spacing * np.sqrt(total / count))
     t_place = time.perf_counter() - t0
     return {
         "triangles": len(surfaces.triangles),
@@ -97,8 +97,8 @@ def run_placement(surfaces, count: int) -> dict:
 def run(surfaces, count: int) -> dict:
     import numpy as np
 
+    from ovrad_addon import AtlasSettings
     from ovrad_addon import atlas as atlas_mod
-    from ovrad_addon.settings import AtlasSettings
 
     settings = AtlasSettings(patch_count=count)
     marks = {}

@@ -42,9 +42,15 @@ def main(argv: list[str]) -> int:
     if np.abs(points - ref["positions"]).max() > 1e-5:
         raise SystemExit("gather_bench: vertices do not match the reference")
     speed_vs_error.ovrad_package()
-    from ovrad.ovrad_addon.atlas import build_atlas
-    from ovrad.ovrad_addon.pipeline import SolveSettings, direct_light, prepare, radiance_at, solve
-    from ovrad.ovrad_addon.settings import AtlasSettings
+    from ovrad.ovrad_addon import (
+        AtlasSettings,
+        SolveSettings,
+        build_atlas,
+        direct_light,
+        prepare,
+        radiance_at,
+        solve,
+    )
 
     t = time.perf_counter()
     atlas = build_atlas(surfaces, AtlasSettings() if a.count is None else AtlasSettings(patch_count=a.count))

@@ -21,7 +21,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from ovrad_addon.surfaces import Surfaces  # noqa: E402
+from ovrad_addon import Surfaces  # noqa: E402
 
 ROOM, HEIGHT, WALL, DOOR = 5.0, 3.0, 0.1, (1.0, 2.1)  # m: room side, height, wall thickness, door w x h
 

@@ -39,23 +39,21 @@ def main(argv: list[str]) -> int:
     *read, _ = speed_vs_error.read_scene(scene, receivers, len(ref["positions"]))
     surfaces, lamps, read_s, points, tri = read
     speed_vs_error.ovrad_package()
-    atlas_mod, pipeline, refine, settings_mod = (
-        importlib.import_module(f"ovrad.ovrad_addon.{m}") for m in ("atlas", "pipeline", "refine", "settings")
-    )
+    engine = importlib.import_module("ovrad.ovrad_addon")
     rows = []
     for count, passes in RUNS:
         t = time.perf_counter()
-        atlas = atlas_mod.build_atlas(surfaces, settings_mod.AtlasSettings(patch_count=count))
-        settings = pipeline.SolveSettings()
-        problem, state, replaced = refine.solve_adaptive(surfaces, atlas, lamps, settings, passes=passes)
+        atlas = engine.build_atlas(surfaces, engine.AtlasSettings(patch_count=count))
+        settings = engine.SolveSettings()
+        problem, state, replaced = engine.solve_adaptive(surfaces, atlas, lamps, settings, passes=passes)
         solve_s = time.perf_counter() - t
         for direct in ("patches", "points"):
             t = time.perf_counter()
             if direct == "points":
-                light = pipeline.direct_light(problem, lamps, settings)
-                L = pipeline.radiance_at(problem, state.radiosity, points, tri, 1, state.first_shot, light)
+                light = engine.direct_light(problem, lamps, settings)
+                L = engine.radiance_at(problem, state.radiosity, points, tri, 1, state.first_shot, light)
             else:
-                L = pipeline.radiance_at(problem, state.radiosity, points, tri, 1)
+                L = engine.radiance_at(problem, state.radiosity, points, tri, 1)
             rec_s = time.perf_counter() - t
             err = scenes.relative_rms(L, ref["radiance"], ref["scored"])
             row = dict(

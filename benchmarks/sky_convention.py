@@ -25,8 +25,7 @@ sys.path[:0] = [str(ROOT), str(ROOT / "benchmarks")]
 
 import real_scenes as rs  # noqa: E402
 import scenes as bench  # noqa: E402
-from ovrad_addon.rays import make_rays  # noqa: E402
-from ovrad_addon.sky import Sky, sky_irradiance  # noqa: E402
+from ovrad_addon import Sky, make_rays, sky_irradiance  # noqa: E402
 
 FACES = {
     "+X": [(1, -1, -1), (1, 1, -1), (1, 1, 1), (1, -1, 1)],

@@ -38,12 +38,18 @@ def one(count: int, beta: str, scene: str) -> dict:
     import numpy as np
 
     import scenes
-    from ovrad_addon.atlas import build_atlas_and_overlaps
-    from ovrad_addon.kept_overlaps import keep
-    from ovrad_addon.memory import StagePeaks
-    from ovrad_addon.pipeline import SolveSettings, direct_light, prepare, radiance_at, solve
-    from ovrad_addon.settings import AtlasSettings
-    from ovrad_addon.transport import cosine_directions
+    from ovrad_addon import (
+        AtlasSettings,
+        SolveSettings,
+        StagePeaks,
+        build_atlas_and_overlaps,
+        cosine_directions,
+        direct_light,
+        keep,
+        prepare,
+        radiance_at,
+        solve,
+    )
 
     peaks = StagePeaks()
     if scene == "interior":

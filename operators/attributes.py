@@ -3,16 +3,10 @@ objects' POINT attributes, baked colours and their ownership marks), each write 
 
 from __future__ import annotations
 
-import hashlib
-
 import bpy
 import numpy as np
 
-from ..ovrad_addon import names
-from ..ovrad_addon.atlas import Atlas
-from ..ovrad_addon.errors import OvradError
-from ..ovrad_addon.kept_overlaps import KeptOverlaps
-from ..ovrad_addon.settings import FINE_QUADRATURE
+from ..ovrad_addon import FINE_QUADRATURE, Atlas, KeptOverlaps, OvradError, hasher, names
 
 ATLAS_VERSION = 1
 ATLAS_SUFFIX = "_ovrad_atlas"
@@ -25,6 +19,12 @@ _LAYOUT = {
     "FLOAT_COLOR": ("color", 4, np.float32),
     "FLOAT2": ("vector", 2, np.float32),
 }
+
+
+def _values_digest(values) -> str:
+    h = hasher(16)
+    h.update(values.tobytes())
+    return h.hexdigest()
 
 
 def is_atlas(obj) -> bool:
@@ -117,7 +117,7 @@ def signature(attr) -> str:
         return attr.data_type
     values = np.empty(4 * len(attr.data), np.float32)
     attr.data.foreach_get("color", values)
-    return f"FLOAT_COLOR:{attr.domain}:{hashlib.blake2b(values.tobytes(), digest_size=16).hexdigest()}"
+    return f"FLOAT_COLOR:{attr.domain}:{_values_digest(values)}"
 
 
 def owned(mesh) -> list[str]:

@@ -18,10 +18,17 @@ import bpy
 import numpy as np
 from bpy.props import EnumProperty, IntProperty, StringProperty
 
-from ..ovrad_addon import bake, names
-from ..ovrad_addon.errors import OvradError
-from ..ovrad_addon.gather import gather_unique
-from ..ovrad_addon.pipeline import bake_normals, bake_sides, irradiance_at, own_emission, radiance_at
+from ..ovrad_addon import (
+    OvradError,
+    bake_normals,
+    bake_sides,
+    gather_unique,
+    irradiance_at,
+    names,
+    own_emission,
+    radiance_at,
+)
+from ..ovrad_addon import texels as bake
 from . import attributes, mesh_reader
 from .solution import load_solution
 

@@ -16,10 +16,16 @@ import bpy
 import numpy as np
 from bpy.props import EnumProperty, StringProperty
 
-from ..ovrad_addon.contact import split_corners
-from ..ovrad_addon.errors import OvradError
-from ..ovrad_addon.gather import shared_normals
-from ..ovrad_addon.pipeline import bake_normals, bake_sides, irradiance_at, radiance_at, without_area
+from ..ovrad_addon import (
+    OvradError,
+    bake_normals,
+    bake_sides,
+    irradiance_at,
+    radiance_at,
+    shared_normals,
+    split_corners,
+    without_area,
+)
 from . import attributes, mesh_reader, solve
 from .solution import load_solution
 

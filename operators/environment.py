@@ -4,17 +4,24 @@ radiosity, which bakes gather from) with a fingerprint of the surfaces they were
 
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..ovrad_addon import names
-from ..ovrad_addon.atlas import Atlas, build_atlas_and_overlaps
-from ..ovrad_addon.errors import OvradError
-from ..ovrad_addon.kept_overlaps import KeptOverlaps, keep
-from ..ovrad_addon.settings import AtlasSettings, ObjectSettings
-from ..ovrad_addon.surfaces import Surfaces, triangle_geometry
+from ..ovrad_addon import (
+    Atlas,
+    AtlasSettings,
+    KeptOverlaps,
+    ObjectSettings,
+    OvradError,
+    Surfaces,
+    add_array,
+    build_atlas_and_overlaps,
+    hasher,
+    keep,
+    names,
+    triangle_geometry,
+)
 from . import attributes
 
 # Environment patches are this many times the receivers' typical spacing. Their light reaches
@@ -69,11 +76,9 @@ def _settings(base: AtlasSettings, surfaces: Surfaces, env: np.ndarray, n_receiv
 def fingerprint(surfaces: Surfaces, env: np.ndarray, settings: AtlasSettings) -> str:
     """What the environment atlas depends on: the world geometry of every surface (probe rays
     see all of them), which objects it covers, and the settings."""
-    h = hashlib.blake2b(digest_size=20)
+    h = hasher(20)
     for a in (surfaces.vertices, surfaces.triangles, surfaces.object_index, env):
-        a = np.ascontiguousarray(a)
-        h.update(f"{a.dtype.str}{a.shape}".encode())
-        h.update(a.tobytes())
+        add_array(h, a)
     h.update(repr(settings).encode())
     return h.hexdigest()
 

@@ -9,14 +9,12 @@ import bpy
 import numpy as np
 from bpy.props import EnumProperty
 
-from ..ovrad_addon.atlas import build_atlas_and_overlaps
-from ..ovrad_addon.errors import OvradError
-from ..ovrad_addon.kept_overlaps import keep, object_keys
+from ..ovrad_addon import OvradError, build_atlas_and_overlaps, keep, object_keys
 from . import attributes, display, properties, scene_io, scene_model
 
 
 @contextmanager
-def _progress(context):
+def progress_bar(context):
     """A progress callback for the engine: the window's progress cursor when there is a UI, else nothing."""
     wm = context.window_manager
     shown = context.window is not None and not bpy.app.background
@@ -67,7 +65,7 @@ class OVRAD_OT_generate_atlas(bpy.types.Operator):
             model = scene_model.read_model(depsgraph, scene)
             meshes = scene_io.read_scene(depsgraph, selected, model.others(selected), model)
             settings = properties.atlas_settings(scene.ovrad, meshes.objects)
-            with _progress(context) as progress:
+            with progress_bar(context) as progress:
                 built = build_atlas_and_overlaps(meshes.surfaces, settings, progress=progress)
             atlas, C, quadrature, flags = built
         except OvradError as e:

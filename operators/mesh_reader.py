@@ -7,7 +7,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..ovrad_addon.errors import OvradError
+from ..ovrad_addon import OvradError
 from . import attributes
 
 

@@ -13,7 +13,7 @@ import json
 
 import bpy
 
-from ..ovrad_addon.errors import OvradError
+from ..ovrad_addon import OvradError
 from . import attributes, compat
 
 PREVIEW_PROP = "ovrad_preview"  # material: JSON record of what the preview changed; our nodes: 1

@@ -6,9 +6,7 @@ from __future__ import annotations
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
-from ..ovrad_addon.gather import MAX_RAYS
-from ..ovrad_addon.pipeline import SolveSettings
-from ..ovrad_addon.settings import AtlasSettings, ObjectSettings
+from ..ovrad_addon import MAX_GATHER_RAYS, AtlasSettings, ObjectSettings, SolveSettings
 from . import attributes, display
 
 # Every default that the engine's settings have is read from them (one default per setting); only
@@ -225,7 +223,7 @@ class OVRAD_PG_settings(bpy.types.PropertyGroup):
         ),
         default=_SOLVE.gather_rays,
         min=0,
-        max=MAX_RAYS,
+        max=MAX_GATHER_RAYS,
         soft_max=1024,
     )
     bake_target: EnumProperty(

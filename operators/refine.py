@@ -14,14 +14,20 @@ import time
 import bpy
 import numpy as np
 
-from ..ovrad_addon import names
-from ..ovrad_addon.atlas import integrate
-from ..ovrad_addon.errors import OvradError
-from ..ovrad_addon.kept_overlaps import keep, object_keys
-from ..ovrad_addon.pipeline import attach_sheets, both_sides_index, overlaps
-from ..ovrad_addon.refine import MIN_SCALE, refine
+from ..ovrad_addon import REFINE_MIN_SCALE as MIN_SCALE
+from ..ovrad_addon import (
+    OvradError,
+    attach_sheets,
+    both_sides_index,
+    integrate,
+    keep,
+    names,
+    object_keys,
+    overlaps,
+    refine,
+)
 from . import attributes, display, properties, solve_inputs
-from .generate import _progress
+from .generate import progress_bar
 
 BASE_RADIUS = "ovrad_base_radius"  # object property: the median radius the atlas was generated with
 
@@ -58,7 +64,7 @@ def refine_scene(context) -> tuple[int, int, int]:
         return 0, count, count
     finer = finer.as_stored()
     quadrature = settings.rule_order(len(finer))  # as Generate would choose for the finer atlas
-    with _progress(context) as progress:
+    with progress_bar(context) as progress:
         finer, C, flags = integrate(finer, index, quadrature, progress)
     world = object_keys(inputs.surfaces)
     for i, (base, src) in enumerate(zip(bases, inputs.sources, strict=True)):

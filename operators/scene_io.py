@@ -7,11 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..ovrad_addon import names
-from ..ovrad_addon.albedo import TextureAlbedo
-from ..ovrad_addon.errors import OvradError
-from ..ovrad_addon.lights import Lamp, lamp_area
-from ..ovrad_addon.surfaces import Surfaces
+from ..ovrad_addon import Lamp, OvradError, Surfaces, TextureAlbedo, lamp_area, names
 from . import compat, materials
 
 

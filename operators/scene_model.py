@@ -40,7 +40,7 @@ class MeshItem:
 class SceneModel:
     """Everything of a scene that takes part in the light (what Cycles renders).
 
-    items: meshes and instances; lamps: engine Lamps; world: the world's light (ovrad_addon.sky.Sky,
+    items: meshes and instances; lamps: engine Lamps; world: the world's light (ovrad_addon.Sky,
     None: none); warnings: what was read approximately.
     """
 

@@ -8,10 +8,7 @@ from dataclasses import dataclass, replace
 import bpy
 import numpy as np
 
-from ..ovrad_addon import names
-from ..ovrad_addon.direct import DirectLight
-from ..ovrad_addon.errors import OvradError
-from ..ovrad_addon.pipeline import Problem, direct_light, locate
+from ..ovrad_addon import DirectLight, OvradError, Problem, direct_light, locate, names
 from . import attributes
 from .solve_inputs import SolveInputs, light_key, read_inputs
 

@@ -16,7 +16,7 @@ from collections.abc import Callable
 
 import bpy
 
-from ..ovrad_addon.errors import OvradError
+from ..ovrad_addon import OvradError
 from . import solution, solve_job, solve_result
 from .solve_inputs import SolveInputs, read_inputs
 from .solve_job import SolveJob

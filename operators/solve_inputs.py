@@ -3,20 +3,23 @@ arrays (SolveInputs) before a solve starts, with the fingerprints the caches are
 
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass, field, replace
 
 import bpy
 import numpy as np
 
-from ..ovrad_addon import names
-from ..ovrad_addon.atlas import Atlas
-from ..ovrad_addon.errors import OvradError
-from ..ovrad_addon.kept_overlaps import KeptOverlaps
-from ..ovrad_addon.lights import Lamp
-from ..ovrad_addon.pipeline import SolveSettings
-from ..ovrad_addon.sky import Sky
-from ..ovrad_addon.surfaces import Surfaces
+from ..ovrad_addon import (
+    Atlas,
+    KeptOverlaps,
+    Lamp,
+    OvradError,
+    Sky,
+    SolveSettings,
+    Surfaces,
+    add_array,
+    hasher,
+    names,
+)
 from . import attributes, environment, properties, scene_io, scene_model
 
 
@@ -92,7 +95,7 @@ def scene_atlases(scene, warnings: list[str]) -> list[tuple]:
 def fingerprint(surfaces: Surfaces, atlas: Atlas) -> str:
     """What the form factors depend on: world geometry, reflectances and albedo textures, receivers
     and the patches (not emission, which the engine reads at each solve, nor lamps)."""
-    h = hashlib.blake2b(digest_size=20)
+    h = hasher(20)
     arrays = (
         surfaces.vertices,
         surfaces.triangles,
@@ -109,9 +112,7 @@ def fingerprint(surfaces: Surfaces, atlas: Atlas) -> str:
         atlas.source_object,
     )
     for a in arrays:
-        a = np.ascontiguousarray(a)
-        h.update(f"{a.dtype.str}{a.shape}".encode())
-        h.update(a.tobytes())
+        add_array(h, a)
     h.update(atlas.beta.encode())
     if surfaces.albedo is not None:  # textures change the transport's rho and the first shot
         h.update(b"albedo" + surfaces.albedo.key())
@@ -121,7 +122,7 @@ def fingerprint(surfaces: Surfaces, atlas: Atlas) -> str:
 def light_key(surfaces: Surfaces, lamps, sky: Sky | None = None) -> str:
     """What direct light depends on besides geometry: the lamps, every triangle's emission and
     the sky."""
-    h = hashlib.blake2b(digest_size=20)
+    h = hasher(20)
     h.update(repr(tuple(lamps)).encode())
     h.update(np.ascontiguousarray(surfaces.emission).tobytes())
     if sky is not None:

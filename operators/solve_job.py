@@ -12,9 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..ovrad_addon.errors import OvradError
-from ..ovrad_addon.pipeline import Problem, prepare, solve
-from ..ovrad_addon.solver import SolveProgress, SolveState
+from ..ovrad_addon import OvradError, Problem, SolveProgress, SolveState, prepare, solve
 
 LIVE_INTERVAL = 0.5  # seconds between live writes of the intermediate radiosity
 PREPARE_WEIGHT = 0.8  # share of the progress bar the form factors take when they are computed

@@ -8,8 +8,7 @@ from dataclasses import dataclass
 import bpy
 import numpy as np
 
-from ..ovrad_addon import names
-from ..ovrad_addon.pipeline import bake_sky, direct_light
+from ..ovrad_addon import bake_sky, direct_light, names
 from . import attributes, compat, display, environment
 from .solution import remember
 from .solve_inputs import SolveInputs, light_key

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..ovrad_addon.sky import Sky
+from ..ovrad_addon import Sky
 from . import compat, materials
 
 MAX_SKY_WIDTH = 1024  # wider maps are averaged down by whole blocks of pixels (power kept)

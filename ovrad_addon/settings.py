@@ -107,3 +107,84 @@ class AtlasSettings:
     def object_settings(self, index: int) -> ObjectSettings:
         """Settings of object `index`, defaults where none were given."""
         return self.objects[index] if index < len(self.objects) else ObjectSettings()
+
+
+# Transport rays cast at most (SolveSettings.max_rays): 32 rays per receiver point reach it at
+# about 16 000 box patches; larger atlases cast fewer per point (see gather_transport).
+MAX_TRANSPORT_RAYS = 1 << 23
+MAX_GATHER_RAYS = 1 << 14  # final-gather rays per bake point at most
+
+
+@dataclass(frozen=True)
+class SolveSettings:
+    """tolerance: stop when unshot power < tolerance x emitted power; rule: "exact" (eq. 9) or
+    "paper" (the published update); rays_per_point: hemisphere rays per receiver point;
+    batch: shooters per step at least (solver.solve_progressive); light_samples: emitter samples
+    per receiver point (direct light);
+    bake_samples: emitter samples per bake point (direct light at vertices and texels);
+    smoothing: weight of the overlap-graph Laplacian added to C when solving (see laplacian_smoothed()),
+    0 solves equation (9) exactly; min_rays: transport rays cast at least, in all (a small atlas
+    gets more receiver points and rays per point, see gather_transport); max_rays: at most (a large
+    atlas casts fewer per receiver point, MAX_TRANSPORT_RAYS); gather_rays: final-gather
+    rays per bake point for its indirect light (gather.py), 0 reconstructs it from the patches
+    (Cornell box, 2 086 patches, every vertex: 5.6 % relative RMS with 0, 3.5 / 2.4 / 1.9 % with
+    64 / 128 / 256 rays for +2.9 / 3.9 / 6.1 s over 8 482 vertices; benchmarks/gather_bench.py);
+    sky_samples / bake_sky_samples: world directions of the sky's fixed rule (sky.py) at the
+    solve's receiver points / at bake points. Their error is aliasing, not noise: a window is
+    seen along the few directions of the rule that pass through it. Measured in the real-scenes
+    window room (2.4 m, 1 x 1 m window), floor and back wall against 16 384 directions, relative
+    RMS per point: 22 / 12 / 6.7 / 3.9 % with 256 / 512 / 1024 / 2048 directions (constant sky;
+    HDR sky with a sun 20 / 11 / 5.4 / 3.0 %), about 5 M shadow rays/s, half the directions facing
+    a surface. The solve (~10^5 receiver points) takes 256, about 1.3 x 10^7 rays, the transport's
+    order; the first shot feeds only the indirect light of bakes. Bake points take 1024."""
+
+    tolerance: float = 1e-3
+    rule: str = "exact"
+    rays_per_point: int = 32
+    batch: int = 64
+    light_samples: int = 16
+    smoothing: float = 0.1
+    bake_samples: int = 64
+    min_rays: int = 1 << 20
+    max_rays: int = MAX_TRANSPORT_RAYS
+    gather_rays: int = 256
+    # Gather hits closer than a patch radius get their direct light computed where they land
+    # (gather.NearField): Cornell box, 2 000 box patches, 256 rays, every vertex: 1.86 -> 1.65 %
+    # relative RMS, vertices within 5 mm of another object +2.7 -> +1.6 % bias; bake time +30 %.
+    near_field: bool = True
+    sky_samples: int = 256
+    bake_sky_samples: int = 1024
+    # Far transport hits link to clusters of patches (clusters.py) whose cell diagonal is under
+    # this many times the hit's distance; 0: alpha at every hit. Measured at every vertex against
+    # Cycles, angle 0 / 0.125 / 0.25: at 100 k patches lamps_doorway 1.76 / 1.74 / 1.83 %, the
+    # Cornell box 1.65 / 1.64 / 1.64 %, transport 15.1 / 11.8 / 11.6 s and 16.5 / 11.4 / 11.4 s
+    # (scale_bench.py); at 2 000 patches (real_scenes_bench.py) doorway 1.62 / 1.63 / 1.51 %,
+    # lamps_doorway 1.76 / 1.77 / 1.68 %, the other seven within 0.03 points. At 0.5 the doorway
+    # went to 2.06 %: a large cluster seen near a receiver's horizon, or partly hidden, gives light
+    # from where its rays do not land.
+    cluster_angle: float = 0.125
+
+    def __post_init__(self) -> None:
+        if not (0 < self.tolerance < 1):
+            raise OvradError(f"tolerance must be in (0, 1), got {self.tolerance}")
+        if self.rule not in ("exact", "paper"):
+            raise OvradError(f"rule must be 'exact' or 'paper', got {self.rule!r}")
+        if not (0.0 <= self.smoothing <= 10.0):
+            raise OvradError(f"smoothing must be in [0, 10], got {self.smoothing}")
+        if not (1 <= self.rays_per_point <= 4096) or not (1 <= self.light_samples <= 1024):
+            raise OvradError("rays_per_point must be in [1, 4096] and light_samples in [1, 1024]")
+        if not (0 <= self.max_rays <= 1 << 30):
+            raise OvradError(f"max_rays must be in [0, {1 << 30}], got {self.max_rays}")
+        if not (0 <= self.min_rays <= 1 << 28):
+            raise OvradError(f"min_rays must be in [0, {1 << 28}], got {self.min_rays}")
+        if not (1 <= self.bake_samples <= 4096):
+            raise OvradError(f"bake_samples must be in [1, 4096], got {self.bake_samples}")
+        if not (2 <= self.sky_samples <= 1 << 16) or not (2 <= self.bake_sky_samples <= 1 << 16):
+            raise OvradError("sky_samples and bake_sky_samples must be in [2, 65536]")
+        if not (0.0 <= self.cluster_angle <= 2.0):
+            raise OvradError(f"cluster_angle must be in [0, 2], got {self.cluster_angle}")
+        if not (0 <= self.gather_rays <= MAX_GATHER_RAYS):
+            raise OvradError(f"gather_rays must be in [0, {MAX_GATHER_RAYS}], got {self.gather_rays}")
+
+
+DEFAULT_SOLVE = SolveSettings()  # the defaults, one frozen instance for default arguments

@@ -234,7 +234,7 @@ def apply_settings(props, args, module) -> None:
     if args.quality:
         module.operators.properties.apply_quality(props, args.quality.upper())
     if args.gather_rays is not None:
-        most = module.ovrad_addon.gather.MAX_RAYS
+        most = module.ovrad_addon.MAX_GATHER_RAYS
         if args.gather_rays > most:
             raise BatchError(f"--gather-rays must be between 0 and {most}, got {args.gather_rays}")
         props.gather_rays = args.gather_rays
@@ -481,7 +481,7 @@ def run(args) -> dict:
     if module is None:
         raise BatchError("ovrad's operators are registered but its module was not found")
     engine = module.ovrad_addon
-    stages.peaks = importlib.import_module(engine.__name__ + ".memory").StagePeaks()
+    stages.peaks = engine.StagePeaks()
     try:
         scene = bpy.context.scene
         if args.picture and scene.camera is None:

@@ -140,13 +140,13 @@ def beta_box_smooth(out: Path, samples: int) -> None:
 def figure3_colors(ovrad, beta: str, points: np.ndarray) -> np.ndarray:
     """Colour reconstructed by the engine from a red and a green disk (paper fig. 3) at points on z = 0."""
     engine = ovrad.ovrad_addon
-    from_arrays = engine.surfaces.Surfaces.from_arrays
+    from_arrays = engine.Surfaces.from_arrays
     quad = np.array([[-3, -2, 0], [3, -2, 0], [3, 2, 0], [-3, 2, 0]], float)
     surfaces = from_arrays(quad, [[0, 1, 2], [0, 2, 3]])
-    index = engine.atlas.index_surfaces(surfaces, engine.settings.AtlasSettings())
+    index = engine.index_surfaces(surfaces, engine.AtlasSettings())
     sheet = int(index.sheet_table[0, 0])
     two = np.ones(2)
-    atlas = engine.atlas.Atlas(
+    atlas = engine.Atlas(
         centers=np.array([[-0.55, 0.0, 0.0], [0.55, 0.0, 0.0]]),
         normals=np.array([[0.0, 0.0, 1.0]] * 2),
         tangents=np.array([[1.0, 0.0, 0.0]] * 2),
@@ -164,8 +164,8 @@ def figure3_colors(ovrad, beta: str, points: np.ndarray) -> np.ndarray:
     )
     down = np.tile([0.0, 0.0, -1.0], (len(points), 1))
     _, tri = index.rays.closest_hit(points - down, down, 2.0)  # the triangle under each point
-    alpha = engine.overlap.alpha_at(atlas, index, points, tri, np.ones(len(points)))
-    color = engine.overlap.reconstruct(alpha, np.array([RED, GREEN]))
+    alpha = engine.alpha_at(atlas, index, points, tri, np.ones(len(points)))
+    color = engine.reconstruct(alpha, np.array([RED, GREEN]))
     covered = np.asarray(alpha.sum(axis=1)).ravel() > 0.5
     return np.where(covered[:, None], color, BACKGROUND)
 

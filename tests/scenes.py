@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ovrad_addon.surfaces import Surfaces
+from ovrad_addon.scene.surfaces import Surfaces
 
 WHITE = (0.725, 0.71, 0.68)
 RED = (0.63, 0.065, 0.05)

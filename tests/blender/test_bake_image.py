@@ -110,7 +110,7 @@ def floor_points(ovrad, points):
         wa, wb = cross2(b - p, c - p) / d, cross2(c - p, a - p) / d
         tri[(tri < 0) & (wa >= 0) & (wb >= 0) & (wa + wb <= 1)] = t
     keep = tri >= 0
-    return keep, ovrad.ovrad_addon.pipeline.radiance_at(
+    return keep, ovrad.ovrad_addon.radiance_at(
         sol.problem, sol.radiosity, points[keep], tri[keep], 1, sol.first_shot, sol.light
     )
 

@@ -372,7 +372,7 @@ def test_a_flat_shaded_sphere_gathers_once_per_vertex_for_the_point_domain(ovrad
     assert bpy.ops.ovrad.generate_atlas() == {"FINISHED"}
     assert bpy.ops.ovrad.solve() == {"FINISHED"}
     blender_scenes.select(sphere)
-    gather = ovrad.ovrad_addon.gather
+    gather = ovrad.ovrad_addon.bake.gather
     counted = []
     original = gather.gather_indirect
 

@@ -431,7 +431,7 @@ def test_a_diverging_solve_stops_with_an_error_and_changes_nothing(furnace, ovra
     not loop forever: the progress callback stops it and the operator reports it."""
     solve, job_module = ovrad.operators.solve, ovrad.operators.solve_job
     real = job_module.solve
-    report = ovrad.ovrad_addon.solver.SolveProgress
+    report = ovrad.ovrad_addon.SolveProgress
 
     def nan_solve(problem, lamps, settings, progress=None, state=None, sky=None):
         st = real(problem, lamps, settings, progress=lambda *a: False, state=state, sky=sky)

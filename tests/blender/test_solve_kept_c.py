@@ -111,9 +111,9 @@ def test_the_kept_contacts_are_taken(saved, ovrad, monkeypatch):
         attr = obj.data.attributes.get(CONTACTS)
         assert attr is not None and (attr.domain, attr.data_type) == ("POINT", "INT"), obj.name
         assert len(attr.data) == len(obj.data.vertices)
-    engine = ovrad.ovrad_addon.contact
-    rule, cast = engine._rule, []
-    monkeypatch.setattr(engine, "_rule", lambda *a, **k: cast.append(1) or rule(*a, **k))
+    engine = ovrad.ovrad_addon.overlap.contacts
+    rule, cast = engine.coarse_rule, []
+    monkeypatch.setattr(engine, "coarse_rule", lambda *a, **k: cast.append(1) or rule(*a, **k))
     kept_stats, kept = solve(ovrad)
     n = sum(len(v) for v in kept.values())
     assert kept_stats["overlaps_kept"] == n and not cast

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from ovrad_addon.albedo import TextureAlbedo, albedo_at, barycentric, bilinear, triangle_means
 from ovrad_addon.errors import OvradError
+from ovrad_addon.scene.albedo import TextureAlbedo, albedo_at, barycentric, bilinear, triangle_means
 
 
 def _ramp(h=8, w=16):

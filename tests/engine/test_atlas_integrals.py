@@ -6,10 +6,13 @@ import numpy as np
 import pytest
 
 import scenes
-from ovrad_addon.atlas import Atlas, build_atlas, index_surfaces
-from ovrad_addon.overlap import alpha_at, overlap_matrix, patch_average, reconstruct
+from ovrad_addon.atlas.index import index_surfaces
+from ovrad_addon.atlas.patches import Atlas
+from ovrad_addon.generate.build import build_atlas
+from ovrad_addon.overlap.matrix import overlap_matrix
+from ovrad_addon.overlap.queries import alpha_at, patch_average, reconstruct
+from ovrad_addon.scene.surfaces import Surfaces
 from ovrad_addon.settings import FINE_QUADRATURE, AtlasSettings
-from ovrad_addon.surfaces import Surfaces
 
 
 def surface_area(s: Surfaces) -> float:
@@ -154,7 +157,7 @@ def test_rows_of_repeated_configurations_are_copied_without_losing_accuracy():
     # disks that repeat a configuration are copied from one integrated member: C is as close to a
     # finer rule's (q = 24, integrated row by row) as integrating every row, and every support
     # area stays within a sliver of its own integral (a footprint the coarse test missed).
-    from ovrad_addon.pipeline import attach_sheets
+    from ovrad_addon.radiosity.problem import attach_sheets
 
     s = scenes.cornell()
     settings = AtlasSettings(patch_count=6000)
@@ -171,7 +174,7 @@ def test_rows_of_repeated_configurations_are_copied_without_losing_accuracy():
     np.testing.assert_allclose(A_copy, A_all, rtol=0.01)
     np.testing.assert_allclose(np.asarray(C_copy.sum(axis=1)).ravel(), A_copy, rtol=1e-12, atol=1e-15)
     # a good share of the rows was copied; they differ from their own integrals by the rule's turn only
-    from ovrad_addon.overlap import neighbour_pairs, repeated_rows
+    from ovrad_addon.overlap.matrix import neighbour_pairs, repeated_rows
 
     h, i = neighbour_pairs(atlas)
     copied = sum(

@@ -4,11 +4,14 @@ import numpy as np
 import pytest
 
 import scenes
-from ovrad_addon.atlas import build_atlas, index_surfaces
+from ovrad_addon.atlas.index import index_surfaces
 from ovrad_addon.errors import OvradError
-from ovrad_addon.overlap import alpha_at, patch_quadrature
+from ovrad_addon.generate.build import build_atlas
+from ovrad_addon.overlap.contacts import contacts
+from ovrad_addon.overlap.quadrature import patch_quadrature
+from ovrad_addon.overlap.queries import alpha_at
+from ovrad_addon.scene.surfaces import Surfaces
 from ovrad_addon.settings import AtlasSettings, ObjectSettings
-from ovrad_addon.surfaces import Surfaces
 
 
 def covering(atlas, index, surfaces, side, count=20_000, seed=5):
@@ -32,7 +35,10 @@ def test_patches_never_cross_a_thin_wall_or_a_crease():
         np.einsum("ij,ij->i", atlas.normals[cols], index.charts.normals[tri[rows]]), 1.0
     )
     # quadrature points of every patch stay on that patch's own face
-    q = patch_quadrature(atlas, index, np.arange(len(atlas)), settings.rule_order(len(atlas)))
+    ids = np.arange(len(atlas))
+    q = patch_quadrature(
+        atlas, index, ids, settings.rule_order(len(atlas)), visibility=contacts(atlas, index)
+    )
     on = q.triangle >= 0
     assert np.all(index.charts.chart[q.triangle[on]] == index.sheet_chart[atlas.sheet[q.owner[on]]])
 
@@ -158,8 +164,8 @@ def test_a_curved_piece_smaller_than_a_patch_gets_one(monkeypatch):
     """A bent piece under ONE_PATCH_AREA of a patch's disk spans several placement voxels, each of
     which gave it a nearly coincident patch (C's block nearly singular); it now gets one patch whose
     disk reaches all of it. A piece twice the disk's area still gets several."""
-    from ovrad_addon import placement
-    from ovrad_addon.surfaces import triangle_geometry
+    from ovrad_addon.generate import curved
+    from ovrad_addon.scene.surfaces import triangle_geometry
 
     spacing, overlap = 0.06, 1.3
     disk = np.pi * (overlap * spacing / np.sqrt(2.0)) ** 2
@@ -171,17 +177,17 @@ def test_a_curved_piece_smaller_than_a_patch_gets_one(monkeypatch):
         return c, n / np.linalg.norm(n, axis=1, keepdims=True)
 
     small, n_small = piece(0.035)
-    assert triangle_geometry(small)[0].sum() < placement.ONE_PATCH_AREA * disk
-    one = placement.place_curved(small, n_small, spacing, overlap, 1.0, seed=1)
+    assert triangle_geometry(small)[0].sum() < curved.ONE_PATCH_AREA * disk
+    one = curved.place_curved(small, n_small, spacing, overlap, 1.0, seed=1)
     assert len(one.radii) == 1
     pts = small.reshape(-1, 3)
     assert np.all(np.linalg.norm(pts - one.centers[0], axis=1) <= one.radii[0] * 1.0001 + 1e-9)
-    monkeypatch.setattr(placement, "ONE_PATCH_AREA", 0.0)
-    assert len(placement.place_curved(small, n_small, spacing, overlap, 1.0, seed=1).radii) > 1
+    monkeypatch.setattr(curved, "ONE_PATCH_AREA", 0.0)
+    assert len(curved.place_curved(small, n_small, spacing, overlap, 1.0, seed=1).radii) > 1
     monkeypatch.undo()
     large, n_large = piece(0.1)
     assert triangle_geometry(large)[0].sum() > 2 * disk
-    assert len(placement.place_curved(large, n_large, spacing, overlap, 1.0, seed=1).radii) > 2
+    assert len(curved.place_curved(large, n_large, spacing, overlap, 1.0, seed=1).radii) > 2
 
 
 def bent_pieces_in_a_room(count: int = 30, seed: int = 11) -> Surfaces:
@@ -198,8 +204,8 @@ def test_voxel_slivers_join_a_neighbour_so_no_two_patches_nearly_coincide(monkey
     is one patch twice). Measured on these leaves (patch size 9 cm, pieces of 0.4-2.5 patch disks):
     36 pairs above 0.9 on 452 leaf patches without the rule, 2 on 234 with it (the production room
     at 8 759 patches rang there: three patches on one piece solved to B of -8.4, -4.9 and +9.9)."""
-    from ovrad_addon import placement
-    from ovrad_addon.atlas import build_atlas_and_overlaps
+    from ovrad_addon.generate import curved
+    from ovrad_addon.generate.build import build_atlas_and_overlaps
 
     s = bent_pieces_in_a_room()
 
@@ -213,7 +219,7 @@ def test_voxel_slivers_join_a_neighbour_so_no_two_patches_nearly_coincide(monkey
         return int(np.sum(product > 0.9)), int(np.sum(atlas.source_object == 1))
 
     with_rule, patches = nearly_coincident()
-    monkeypatch.setattr(placement, "SLIVER_AREA", 0.0)
+    monkeypatch.setattr(curved, "SLIVER_AREA", 0.0)
     without, more = nearly_coincident()
     assert with_rule * 4 < without
     assert patches < more  # the slivers' patches are gone, not moved
@@ -223,20 +229,21 @@ def test_counting_a_placement_gives_the_count_placing_makes():
     """Generate's first placement only counts (count_only): on every sheet of a room of bent leaves
     (curved pieces, slivers merged) and of the Cornell box (planar, boundary squares), at three
     spacings, the count is the number of patches the full placement makes."""
-    from ovrad_addon.atlas import _place_all, _sheet_spacing
+    from ovrad_addon.atlas.index import sheet_spacing
+    from ovrad_addon.generate.build import place_all
 
     cases = ((bent_pieces_in_a_room(), AtlasSettings(patch_size=0.09)), (scenes.cornell(), AtlasSettings()))
     for s, settings in cases:
         index = index_surfaces(s, settings)
-        base = _sheet_spacing(index, settings)
+        base = sheet_spacing(index, settings)
         angles = {}
         for f in (0.6, 1.0, 1.7):
-            placed, total = _place_all(index, settings, f * base, angles)
-            counted = _place_all(index, settings, f * base, angles, count_only=True)[1]
+            placed, total = place_all(index, settings, f * base, angles)
+            counted = place_all(index, settings, f * base, angles, count_only=True)[1]
             assert total == sum(len(p.radii) for p in placed) == counted
         # the kept grid angles are the ones the sheets would get afresh
         fresh = {}
-        _place_all(index, settings, base, fresh)
+        place_all(index, settings, base, fresh)
         assert fresh == angles and len(angles) > 0
 
 
@@ -245,7 +252,7 @@ def test_curved_sheets_placed_together_are_placed_as_if_alone():
     samples, voxels, slivers merged within it, thickness from its own samples only), whatever
     sheets share the batch: pieces of one patch, of a few (slivers merged) and of many, two of
     them overlapping in space (both sides of a leaf are two sheets)."""
-    from ovrad_addon import placement
+    from ovrad_addon.generate import curved
 
     rng = np.random.default_rng(4)
     pieces = []
@@ -257,7 +264,7 @@ def test_curved_sheets_placed_together_are_placed_as_if_alone():
     pieces.append((pieces[3][0][:, ::-1], -pieces[3][1]))  # the large leaf's other side, same place
     spacing, overlap, seeds = np.array([0.06, 0.06, 0.05, 0.04, 0.2, 0.04]), 1.3, [7, 3, 11, 5, 2, 8]
     alone = [
-        placement.place_curved(c, n, sp, overlap, 1.0, s)
+        curved.place_curved(c, n, sp, overlap, 1.0, s)
         for (c, n), sp, s in zip(pieces, spacing, seeds, strict=True)
     ]
     counts = [len(p.radii) for p in alone]
@@ -265,10 +272,10 @@ def test_curved_sheets_placed_together_are_placed_as_if_alone():
     corners = np.concatenate([c for c, _ in pieces])
     normals = np.concatenate([n for _, n in pieces])
     sheet = np.repeat(np.arange(len(pieces)), [len(c) for c, _ in pieces])
-    together, k_per = placement.place_curved_many(corners, normals, sheet, spacing, overlap, 1.0, seeds)
+    together, k_per = curved.place_curved_many(corners, normals, sheet, spacing, overlap, 1.0, seeds)
     assert list(k_per) == counts
     np.testing.assert_array_equal(
-        placement.place_curved_many(corners, normals, sheet, spacing, overlap, 1.0, seeds, count_only=True),
+        curved.place_curved_many(corners, normals, sheet, spacing, overlap, 1.0, seeds, count_only=True),
         counts,
     )
     first = np.cumsum([0] + [len(c) for c, _ in pieces])
@@ -283,7 +290,7 @@ def test_planar_sheets_placed_together_are_placed_as_if_alone():
     sheets share the batch, and its grid is the one the sheet's bounding rectangle gives: a
     w x h rectangle at spacing s gets ceil(w / s) x ceil(h / s) cells, squares on the cells its
     border touches and disks inside; a frame (a square with a square hole) squares on both rims."""
-    from ovrad_addon import placement
+    from ovrad_addon.generate import planar
     from ovrad_addon.names import SHAPE_SQUARE
 
     def quad(x0, y0, x1, y1, z=0.0):
@@ -308,16 +315,16 @@ def test_planar_sheets_placed_together_are_placed_as_if_alone():
     sheets = [rect, frame, tilted, back, tiny]
     normals = [np.cross(c[0, 1] - c[0, 0], c[0, 2] - c[0, 0]) for c in sheets]
     spacing, overlap = np.full(len(sheets), 0.2), 1.3
-    angles = np.array([placement.grid_angle(c, n) for c, n in zip(sheets, normals, strict=True)])
+    angles = np.array([planar.grid_angle(c, n) for c, n in zip(sheets, normals, strict=True)])
     alone = [
-        placement.place_planar(c, n, 0.2, overlap, "AUTO", 10.0, a)
+        planar.place_planar(c, n, 0.2, overlap, "AUTO", 10.0, a)
         for c, n, a in zip(sheets, normals, angles, strict=True)
     ]
     corners = np.concatenate(sheets)
     owner = np.repeat(np.arange(len(sheets)), [len(c) for c in sheets])
     args = (corners, owner, np.array(normals), spacing, overlap, "AUTO", 10.0, angles)
-    together, k_per = placement.place_planar_many(*args)
-    np.testing.assert_array_equal(placement.place_planar_many(*args, count_only=True), k_per)
+    together, k_per = planar.place_planar_many(*args)
+    np.testing.assert_array_equal(planar.place_planar_many(*args, count_only=True), k_per)
     assert list(k_per) == [len(p.radii) for p in alone]
     first = np.cumsum([0] + [len(c) for c in sheets])
     for f in ("centers", "normals", "tangents", "radii", "shapes", "thickness", "min_cos"):

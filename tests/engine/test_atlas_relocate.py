@@ -11,12 +11,14 @@ import pytest
 
 import scenes
 from ovrad_addon import names
-from ovrad_addon.atlas import Atlas, build_atlas, index_surfaces
-from ovrad_addon.clutter import chart_objects
+from ovrad_addon.atlas.clutter import chart_objects
+from ovrad_addon.atlas.index import index_surfaces
+from ovrad_addon.atlas.patches import Atlas
 from ovrad_addon.errors import OvradError
-from ovrad_addon.pipeline import _located_sheets, attach_sheets, both_sides_index
+from ovrad_addon.generate.build import build_atlas
+from ovrad_addon.radiosity.problem import attach_sheets, both_sides_index, located_sheets
+from ovrad_addon.scene.surfaces import Surfaces
 from ovrad_addon.settings import AtlasSettings
-from ovrad_addon.surfaces import Surfaces
 
 
 def _ring(outer, inner, axis_u, axis_v, origin, flip):
@@ -172,7 +174,7 @@ def test_doorway_legacy_search_agrees_where_it_finds_a_sheet():
     atlas = build_atlas(s, AtlasSettings(patch_size=0.3))
     index = solve_index(s)
     legacy = replace(blender_round_trip(atlas), triangle=None, side=None)
-    found = _located_sheets(legacy, index)
+    found = located_sheets(legacy, index)
     stored = attach_sheets(blender_round_trip(atlas), index).sheet
     ok = found >= 0
     assert ok.mean() > 0.9

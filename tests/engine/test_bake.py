@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from ovrad_addon.bake import dilate, rasterize, to_image
+from ovrad_addon.bake.texels import dilate, rasterize, to_image
 from ovrad_addon.errors import OvradError
 
 # A unit quad in UV (two triangles) mapped onto a 2 x 3 rectangle at z = 1 in the world.

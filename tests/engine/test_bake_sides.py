@@ -4,10 +4,11 @@ reconstructs (vertex and image bakes alike)."""
 import numpy as np
 
 import scenes
-from ovrad_addon.atlas import build_atlas
-from ovrad_addon.pipeline import bake_sides, locate
+from ovrad_addon.bake.points import bake_sides
+from ovrad_addon.generate.build import build_atlas
+from ovrad_addon.radiosity.problem import locate
+from ovrad_addon.scene.surfaces import Surfaces
 from ovrad_addon.settings import AtlasSettings, ObjectSettings
-from ovrad_addon.surfaces import Surfaces
 
 
 def two_sided_card():
@@ -47,8 +48,11 @@ def test_a_triangle_without_area_is_baked_lit_as_blender_shades_it_facing_up():
 
     from reference import analytic
 
-    from ovrad_addon.lights import Lamp
-    from ovrad_addon.pipeline import SolveSettings, direct_light, irradiance_at, prepare, solve
+    from ovrad_addon.bake.points import irradiance_at
+    from ovrad_addon.light.lamps import Lamp
+    from ovrad_addon.radiosity.first_shot import direct_light, solve
+    from ovrad_addon.radiosity.problem import prepare
+    from ovrad_addon.settings import SolveSettings
 
     floor_v, floor_t = scenes.plane(size=4.0, n=4)
     line = np.array([[0.25, -0.125, 0.5], [0.375, 0.0, 0.625], [0.5, 0.125, 0.75]])  # exactly on a line

@@ -1,15 +1,16 @@
-"""overlap.border_crossings: where a planar patch's rule rays leave its chart, found exactly in the
+"""cuts.border_crossings: where a planar patch's rule rays leave its chart, found exactly in the
 patch's plane, against an independent point-in-polygon search along the same rays."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from ovrad_addon import overlap
-from ovrad_addon.atlas import build_atlas
-from ovrad_addon.pipeline import attach_sheets, both_sides_index
+from ovrad_addon.generate.build import build_atlas
+from ovrad_addon.overlap import cuts, rule
+from ovrad_addon.overlap.matrix import overlap_matrix
+from ovrad_addon.radiosity.problem import attach_sheets, both_sides_index
+from ovrad_addon.scene.surfaces import Surfaces
 from ovrad_addon.settings import AtlasSettings
-from ovrad_addon.surfaces import Surfaces
 
 # a convex quadrilateral floor, two triangles (their shared diagonal is no border), no edge along
 # the placement grid: its borders cut disks and squares at every angle
@@ -39,9 +40,9 @@ def test_crossings_are_where_the_rays_leave_the_chart():
     atlas = attach_sheets(atlas, index)
     ids = np.arange(len(atlas))
     q = 8
-    theta, _, _, _, rmax = overlap._rule_rays(atlas, ids, q)
+    theta, _, _, _, rmax = rule.rule_rays(atlas, ids, q)
     kk, tt = np.nonzero(np.ones(theta.shape, bool))
-    ck, ct, rho = overlap.border_crossings(atlas, index, ids, theta, rmax, kk, tt)
+    ck, ct, rho = cuts.border_crossings(atlas, index, ids, theta, rmax, kk, tt)
     # the same rays walked in 4 000 steps, each change of inside/outside bisected to 1e-12
     u = (
         np.cos(theta[kk, tt])[:, None] * atlas.tangents[kk]
@@ -91,9 +92,9 @@ def test_cut_supports_are_as_exact_with_crossings_as_with_sampling(monkeypatch):
     cut = np.flatnonzero(exact < 0.98 * full)
     assert len(cut) >= 10 and np.any(atlas.shapes[cut] == 0)
     errors = []
-    for most in (overlap.MAX_BORDER, -1):  # -1: every ray sampled and bisected, as before
-        monkeypatch.setattr(overlap, "MAX_BORDER", most)
-        _, support = overlap.overlap_matrix(atlas, index, 8)
+    for most in (cuts.MAX_BORDER, -1):  # -1: every ray sampled and bisected, as before
+        monkeypatch.setattr(cuts, "MAX_BORDER", most)
+        _, support = overlap_matrix(atlas, index, 8)
         errors.append(np.abs(support[cut] / exact[cut] - 1.0))
     # measured: 0.69 % on average, 3.4 % at most; bisected: 0.68 % and 3.8 % (the angular rule's
     # error, the same for both, is most of it)

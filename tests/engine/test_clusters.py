@@ -7,14 +7,17 @@ import numpy as np
 import pytest
 
 import scenes
-from ovrad_addon.atlas import build_atlas, build_atlas_and_overlaps, index_surfaces
-from ovrad_addon.clusters import Clusters
-from ovrad_addon.overlap import alpha_at, overlap_matrix, patch_average, reconstruct
-from ovrad_addon.pipeline import SolveSettings, prepare, solve
-from ovrad_addon.settings import AtlasSettings
-from ovrad_addon.solver import solve_direct, solve_progressive
-from ovrad_addon.surfaces import Surfaces
-from ovrad_addon.transport import gather_transport, receiver_points
+from ovrad_addon.atlas.index import index_surfaces
+from ovrad_addon.generate.build import build_atlas, build_atlas_and_overlaps
+from ovrad_addon.overlap.matrix import overlap_matrix
+from ovrad_addon.overlap.queries import alpha_at, patch_average, reconstruct
+from ovrad_addon.radiosity.clusters import Clusters
+from ovrad_addon.radiosity.first_shot import solve
+from ovrad_addon.radiosity.problem import prepare
+from ovrad_addon.radiosity.solver import solve_direct, solve_progressive
+from ovrad_addon.radiosity.transport import gather_transport, receiver_points
+from ovrad_addon.scene.surfaces import Surfaces
+from ovrad_addon.settings import AtlasSettings, SolveSettings
 
 
 def closed_room(shape: str, rho: float, patch_count: int = 200, beta: str = "smooth", overlap: float = 1.3):

@@ -8,12 +8,15 @@ import pytest
 
 import scenes
 from ovrad_addon import names
-from ovrad_addon.atlas import build_atlas
-from ovrad_addon.clutter import clutter_from_atlas
-from ovrad_addon.overlap import alpha_at, overlap_matrix
-from ovrad_addon.pipeline import SolveSettings, both_sides_index, prepare, radiance_at, solve
-from ovrad_addon.settings import AtlasSettings
-from ovrad_addon.surfaces import Surfaces
+from ovrad_addon.atlas.clutter import clutter_from_atlas
+from ovrad_addon.bake.points import radiance_at
+from ovrad_addon.generate.build import build_atlas
+from ovrad_addon.overlap.matrix import overlap_matrix
+from ovrad_addon.overlap.queries import alpha_at
+from ovrad_addon.radiosity.first_shot import solve
+from ovrad_addon.radiosity.problem import both_sides_index, prepare
+from ovrad_addon.scene.surfaces import Surfaces
+from ovrad_addon.settings import AtlasSettings, SolveSettings
 
 
 def cluttered_room(leaves: int = 200, cubes: int = 60, seed: int = 5) -> Surfaces:
@@ -154,7 +157,7 @@ def test_a_small_curved_piece_is_clutter_so_no_part_of_it_hides_from_its_patch(m
     and its one disk's support left them out (the production room's BoomBox: a knob's front patch
     held nothing, was dropped, and the knob baked black). Curved charts under a quarter cell are clutter
     now: the balls' supports hold the whole of each strip, both sides."""
-    import ovrad_addon.clutter as clutter
+    from ovrad_addon.atlas import clutter
 
     s = curled_strips()
     k = s.corners[s.object_index == 1]

@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 
 import scenes
-from ovrad_addon.atlas import build_atlas
-from ovrad_addon.contact import contacts, split_corners
-from ovrad_addon.overlap import alpha_at
-from ovrad_addon.pipeline import prepare
+from ovrad_addon.generate.build import build_atlas
+from ovrad_addon.overlap.contacts import contacts, split_corners
+from ovrad_addon.overlap.queries import alpha_at
+from ovrad_addon.radiosity.problem import prepare
+from ovrad_addon.scene.surfaces import Surfaces
 from ovrad_addon.settings import AtlasSettings
-from ovrad_addon.surfaces import Surfaces
 
 W, T, D, H = 2.4, 0.1, 2.4, 2.4  # room width, partition thickness, depth, height
 Y0, Y1, Z1 = 0.8, 1.6, 2.0  # the doorway: y from Y0 to Y1, up to Z1
@@ -114,13 +114,14 @@ def test_a_vertex_on_a_contact_line_is_split_between_its_faces():
 def test_chunked_work_gives_the_same_atlas_as_one_pass(monkeypatch):
     # contacts, their splitting and every patch rule go in chunks of patches (memory); a patch's
     # result is its own, so chunks of 97 patches must give the atlas and C one pass gives, bit for bit
-    from ovrad_addon import contact, overlap
+    from ovrad_addon.overlap import quadrature
+    from ovrad_addon.overlap.contacts import contacts as contact
 
     s = scenes.cornell()  # two blocks standing on the floor: contact lines
 
     def atlas_of(chunk):
         monkeypatch.setattr(contact, "CHUNK", chunk)
-        monkeypatch.setattr(overlap, "QUADRATURE_CHUNK", chunk)
+        monkeypatch.setattr(quadrature, "QUADRATURE_CHUNK", chunk)
         return build_atlas(s, AtlasSettings(patch_count=1500))
 
     one, chunked = atlas_of(1 << 30), atlas_of(97)
@@ -158,11 +159,13 @@ def _lamp_room(cut: bool) -> Surfaces:
 
 def _room_light(cut: bool, cover: float | None = None, monkeypatch=None, count: int = 400) -> np.ndarray:
     """Radiance from the patches at floor and wall points, the highest 5 cm under the ceiling."""
-    from ovrad_addon import contact
-    from ovrad_addon.pipeline import SolveSettings, radiance_at, solve
+    from ovrad_addon.bake.points import radiance_at
+    from ovrad_addon.overlap import sight
+    from ovrad_addon.radiosity.first_shot import solve
+    from ovrad_addon.settings import SolveSettings
 
     if cover is not None:
-        monkeypatch.setattr(contact, "COVER", cover)
+        monkeypatch.setattr(sight, "COVER", cover)
     s = _lamp_room(cut)
     problem = prepare(s, build_atlas(s, AtlasSettings(patch_count=count)))
     state = solve(problem, (), SolveSettings())
@@ -200,7 +203,7 @@ def test_far_rays_next_to_a_lamp_do_not_read_the_light_over_it(monkeypatch):
     (clusters.py). A cluster holding both the ceiling over the lamp and the ceiling beside it
     sends their mean: the light trapped over the lamp reached the room through every far ray
     landing near it. Covered patches are clustered apart: the uncut room matches the cut one."""
-    from ovrad_addon import clusters
+    from ovrad_addon.radiosity import clusters
 
     cut = _room_light(cut=True, count=3000)
     whole = _room_light(cut=False, count=3000)
@@ -244,8 +247,9 @@ def test_splitting_finds_the_contacts_of_the_split_atlas(monkeypatch, make):
     """split_at_contacts caches the split atlas's contacts (its rule points seen from its float32
     anchors) so that integrating C does not find them again: they are what contacts() finds for
     that atlas on an index of its own, bit for bit (blocks on a floor, a partition, a lamp's cover)."""
-    from ovrad_addon import atlas as atlas_mod
-    from ovrad_addon import contact
+    from ovrad_addon.atlas.index import index_surfaces
+    from ovrad_addon.generate import build as atlas_mod
+    from ovrad_addon.overlap.contacts import contacts as contact
 
     s = make()
     split = atlas_mod.split_at_contacts
@@ -260,7 +264,7 @@ def test_splitting_finds_the_contacts_of_the_split_atlas(monkeypatch, make):
     build_atlas(s, settings)
     atlas, index = made[0]
     cached = index.cache[contact._key(atlas)]
-    found = contacts(atlas, atlas_mod.index_surfaces(s, settings))
+    found = contacts(atlas, index_surfaces(s, settings))
     assert found is not cached
     for name in ("anchor", "lift", "cut", "whole", "covered"):
         np.testing.assert_array_equal(getattr(cached, name), getattr(found, name), err_msg=name)

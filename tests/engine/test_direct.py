@@ -1,4 +1,4 @@
-"""Direct light at bake points (direct.py, pipeline.radiance_at with the first shot split off)
+"""Direct light at bake points (direct.py, points.radiance_at with the first shot split off)
 against closed forms: emitter sampling, shadow rays from concave edges, sharp shadows."""
 
 from dataclasses import replace
@@ -8,25 +8,29 @@ import pytest
 from reference import analytic
 
 import scenes
-from ovrad_addon import direct, lights, pipeline
-from ovrad_addon.atlas import build_atlas
-from ovrad_addon.direct import DirectLight, emitter_irradiance, polygon_irradiance, triangle_normals
+from ovrad_addon.bake import points
+from ovrad_addon.bake.points import irradiance_at, radiance_at
+from ovrad_addon.generate.build import build_atlas
 from ovrad_addon.geometry import subtriangle_centroids
-from ovrad_addon.lights import Lamp, lamp_irradiance
-from ovrad_addon.pipeline import (
-    SolveSettings,
-    direct_light,
-    emitter_samples,
-    irradiance_at,
-    prepare,
-    radiance_at,
-    solve,
-)
-from ovrad_addon.rays import make_rays
-from ovrad_addon.settings import AtlasSettings
-from ovrad_addon.surfaces import Surfaces
+from ovrad_addon.light import direct, tree
+from ovrad_addon.light import lamps as lights
+from ovrad_addon.light.direct import DirectLight, emitter_irradiance, triangle_normals
+from ovrad_addon.light.emitters import polygon_irradiance
+from ovrad_addon.light.lamps import Lamp, lamp_irradiance
+from ovrad_addon.radiosity.first_shot import direct_light, emitter_sample_count, solve
+from ovrad_addon.radiosity.problem import prepare
+from ovrad_addon.scene.rays import make_rays
+from ovrad_addon.scene.surfaces import Surfaces
+from ovrad_addon.settings import AtlasSettings, SolveSettings
 
 RHO = 0.8
+
+
+def near_emitter(monkeypatch, value: float) -> None:
+    """Set NEAR_EMITTER where it is read: the near field of the samples (direct.py) and the reach
+    of the light tree's nodes (tree.py)."""
+    monkeypatch.setattr(direct, "NEAR_EMITTER", value)
+    monkeypatch.setattr(tree, "NEAR_EMITTER", value)
 
 
 def _emitter_over_plane(flip: bool):
@@ -125,7 +129,7 @@ def shadowed_plane():
     return problem, lamp, solve(problem, (lamp,))
 
 
-def _closed_form_direct(points, lamp_pos, power):
+def closed_form_direct(points, lamp_pos, power):
     """Point-lamp irradiance on the plane z = 0, zero where the segment to the lamp crosses the
     occluder square |x|, |y| <= 0.3 at z = 1; and how far each point is from the shadow's edge."""
     v = lamp_pos - points
@@ -145,7 +149,7 @@ def test_bake_points_get_the_exact_shadow_edge(shadowed_plane):
     rng = np.random.default_rng(5)
     pts = np.zeros((3000, 3))
     pts[:, :2] = rng.uniform(-1.0, 1.0, size=(3000, 2))
-    exact, margin = _closed_form_direct(pts, np.array(lamp.position), lamp.power)
+    exact, margin = closed_form_direct(pts, np.array(lamp.position), lamp.power)
     pts, exact = pts[margin > 1e-6], exact[margin > 1e-6]
     tri = problem.index.rays.closest_hit(pts + [0, 0, 1e-3], np.tile([0, 0, -1.0], (len(pts), 1)), 1.0)[1]
     light = direct_light(problem, (lamp,), SolveSettings())
@@ -221,10 +225,10 @@ def test_the_first_shots_budget_keeps_picked_emitter_samples():
         panel[n] = Surfaces.from_arrays(pv, pt, emission=[1.0, 1.0, 1.0])
     light = DirectLight(emitters=np.ones(len(panel[20].triangles), bool))
     assert direct.picked(panel[20], light.emitters, 16) and not direct.picked(panel[20], light.emitters, 1024)
-    assert emitter_samples(panel[20], light, 16, 4) == 16
-    assert emitter_samples(panel[1], replace(light, emitters=np.ones(2, bool)), 16, 4) == 4
-    assert emitter_samples(panel[20], replace(light, emitters=None), 16, 4) == 4
-    assert emitter_samples(panel[20], light, 16, 16) == 16
+    assert emitter_sample_count(panel[20], light, 16, 4) == 16
+    assert emitter_sample_count(panel[1], replace(light, emitters=np.ones(2, bool)), 16, 4) == 4
+    assert emitter_sample_count(panel[20], replace(light, emitters=None), 16, 4) == 4
+    assert emitter_sample_count(panel[20], light, 16, 16) == 16
 
 
 @pytest.mark.parametrize("cuts, want", [(1, 8), (20, 16)])  # a quad: 2 triangles; 800 (picked)
@@ -241,13 +245,13 @@ def test_a_gathers_near_hits_keep_16_picked_emitter_samples(cuts, want, monkeypa
     problem = prepare(s, build_atlas(s, AtlasSettings(patch_count=300)))
     state = solve(problem)
     seen = []
-    original = pipeline.NearField
+    original = points.NearField
 
     def recording(light, *args, **kwargs):
         seen.append(light)
         return original(light, *args, **kwargs)
 
-    monkeypatch.setattr(pipeline, "NearField", recording)
+    monkeypatch.setattr(points, "NearField", recording)
     pts, tri = scenes.sample_surface(s, 50, seed=2)
     floor = tri >= len(et)
     light = direct_light(problem, (), SolveSettings())
@@ -270,8 +274,8 @@ def test_points_close_to_an_emitter_of_more_triangles_than_samples_get_its_exact
     pts[:, :2] = rng.uniform(-0.45, 0.45, size=(200, 2))
     nrm = np.tile([0.0, 0.0, side], (200, 1))
     worst = {}
-    for near in (direct.NEAR_EMITTER, 0.0):
-        monkeypatch.setattr(direct, "NEAR_EMITTER", near)
+    for near in (tree.NEAR_EMITTER, 0.0):
+        near_emitter(monkeypatch, near)
         for h in (1e-3, 1e-2, 5e-2):
             pts[:, 2] = 0.5 - side * h
             exact = np.pi * analytic.ff_point_to_polygon(pts, nrm, rect)
@@ -282,9 +286,9 @@ def test_points_close_to_an_emitter_of_more_triangles_than_samples_get_its_exact
     assert max(v for (near, _), v in worst.items() if near > 0) < 0.015
     assert worst[0.0, 1e-2] > 0.3 and worst[0.0, 5e-2] > 1.0
     # the near points go in blocks (memory): any block size gives the same light
-    monkeypatch.setattr(direct, "NEAR_EMITTER", 2.0)
+    near_emitter(monkeypatch, 2.0)
     whole, _ = emitter_irradiance(s, rays, np.ones(len(pt), bool), pts, nrm, 64)
-    monkeypatch.setattr(direct, "NEAR_POINTS", 7)
+    monkeypatch.setattr(tree, "NEAR_POINTS", 7)
     blocks, _ = emitter_irradiance(s, rays, np.ones(len(pt), bool), pts, nrm, 64)
     np.testing.assert_allclose(blocks, whole, rtol=1e-12, atol=0)
 
@@ -352,7 +356,7 @@ def test_emitter_irradiance_close_over_an_emitter(height):
 def test_midpoint_rule_alone_fails_close_over_an_emitter(monkeypatch):
     """The same points 1 cm over the emitter with the near-field form factor switched off: the fixed
     rule alone is off by far more than the test above allows (measured: up to 96 %)."""
-    monkeypatch.setattr(direct, "NEAR_EMITTER", 0.0)
+    near_emitter(monkeypatch, 0.0)
     s, rect = _emitter_over_plane(False)
     xy = np.random.default_rng(7).uniform([-0.5, -0.4], [0.5, 0.4], (300, 2))
     pts = np.column_stack([xy, np.full(300, 0.51)])
@@ -428,15 +432,15 @@ def _blob(rng: np.random.Generator, bend: float) -> np.ndarray:
 def test_a_far_node_of_the_light_tree_is_its_contour_integral(bend, monkeypatch):
     """Beyond NEAR_EXACT x its radius (wholly above the point's horizon, seen from one side) a node
     of emitting triangles gives its light as one point corrected to second order for its extent (its
-    second moment of area, direct._second_order): random blobs of grid triangles, flat or bent (up to
+    second moment of area, tree.second_order): random blobs of grid triangles, flat or bent (up to
     6 degrees between normals), at NEAR_EXACT to 1.5 NEAR_EXACT radii from random points whose
     horizon they lie over, against the sum of Lambert's contour integral over their triangles (the
     reference's analytic.ff_point_to_polygon). Errors in units of the blob's area over distance
     squared (its light face-on), as edge-on blobs, whose light is faint, would make relative errors
     meaningless."""
-    from ovrad_addon.surfaces import triangle_geometry
+    from ovrad_addon.scene.surfaces import triangle_geometry
 
-    monkeypatch.setattr(direct, "NEAR_EMITTER", 1e3)  # every triangle near: the tree alone
+    near_emitter(monkeypatch, 1e3)  # every triangle near: the tree alone
     rng = np.random.default_rng(11)
     err, one_point = [], []
     for _ in range(60):
@@ -449,7 +453,7 @@ def test_a_far_node_of_the_light_tree_is_its_contour_integral(bend, monkeypatch)
         )
         toward = rng.normal(size=(40, 3))
         toward /= np.linalg.norm(toward, axis=1, keepdims=True)
-        dist = radius * rng.uniform(direct.NEAR_EXACT * 1.01, direct.NEAR_EXACT * 1.5, 40)
+        dist = radius * rng.uniform(tree.NEAR_EXACT * 1.01, tree.NEAR_EXACT * 1.5, 40)
         pts = centre - dist[:, None] * toward
         nrm = rng.normal(size=(40, 3))
         nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
@@ -499,7 +503,7 @@ def test_the_light_tree_gives_a_glowing_sphere_its_exact_light(distance, monkeyp
         sees = np.einsum("ij,ij->i", pts[k] - c[:, 0], outward) > 0
         at = np.tile(pts[k], (sees.sum(), 1))
         exact[k] = polygon_irradiance(at, np.tile(nrm[k], (sees.sum(), 1)), c[sees]).sum()
-    monkeypatch.setattr(direct, "NEAR_EMITTER", 100.0)
+    near_emitter(monkeypatch, 100.0)
     H, _ = emitter_irradiance(s, rays, np.ones(len(c), bool), pts, nrm, 64)
     np.testing.assert_allclose(H / [1.5, 1.0, 0.5], np.repeat(H[:, :1] / 1.5, 3, axis=1), rtol=1e-9)
     # measured: at most 0.3 % of the brightest point's light, the total within 0.09 %

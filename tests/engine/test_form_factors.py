@@ -21,12 +21,14 @@ import pytest
 from reference import analytic
 
 import scenes
-from ovrad_addon.atlas import Atlas, build_atlas, index_surfaces
-from ovrad_addon.overlap import overlap_matrix
-from ovrad_addon.pipeline import SolveSettings, prepare
-from ovrad_addon.settings import AtlasSettings
-from ovrad_addon.surfaces import Surfaces
-from ovrad_addon.transport import gather_transport
+from ovrad_addon.atlas.index import index_surfaces
+from ovrad_addon.atlas.patches import Atlas
+from ovrad_addon.generate.build import build_atlas
+from ovrad_addon.overlap.matrix import overlap_matrix
+from ovrad_addon.radiosity.problem import prepare
+from ovrad_addon.radiosity.transport import gather_transport
+from ovrad_addon.scene.surfaces import Surfaces
+from ovrad_addon.settings import AtlasSettings, SolveSettings
 from scenes import merge, quad
 
 RAYS = 256

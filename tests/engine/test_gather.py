@@ -7,37 +7,27 @@ import numpy as np
 import pytest
 
 import scenes
-from ovrad_addon import gather
-from ovrad_addon.atlas import build_atlas
-from ovrad_addon.direct import triangle_normals
-from ovrad_addon.errors import OvradError
-from ovrad_addon.gather import (
-    CornerCache,
-    LatticeValues,
-    NearField,
-    TriangleFrames,
+from ovrad_addon.bake import lattice
+from ovrad_addon.bake.gather import (
     gather_axis,
     gather_indirect,
     gather_unique,
     hemisphere_pattern,
-    inside,
-    sampled_emission,
     shared_normals,
     strata,
     unique_points,
 )
-from ovrad_addon.lights import Lamp
-from ovrad_addon.pipeline import (
-    SolveSettings,
-    direct_light,
-    irradiance_at,
-    patch_emission,
-    prepare,
-    radiance_at,
-    solve,
-)
-from ovrad_addon.settings import AtlasSettings
-from ovrad_addon.surfaces import Surfaces
+from ovrad_addon.bake.lattice import CornerCache, LatticeValues, NearField, TriangleFrames, inside
+from ovrad_addon.bake.points import irradiance_at, radiance_at
+from ovrad_addon.errors import OvradError
+from ovrad_addon.generate.build import build_atlas
+from ovrad_addon.light.direct import triangle_normals
+from ovrad_addon.light.lamps import Lamp
+from ovrad_addon.radiosity.emission import patch_emission, sampled_emission
+from ovrad_addon.radiosity.first_shot import direct_light, solve
+from ovrad_addon.radiosity.problem import prepare
+from ovrad_addon.scene.surfaces import Surfaces
+from ovrad_addon.settings import AtlasSettings, SolveSettings
 
 
 def polygon_form_factor(point, normal, polygon):
@@ -583,6 +573,6 @@ def test_lattice_near_a_contact_matches_alpha_at_every_hit(block, monkeypatch):
     assert CornerCache(problem, state.radiosity, None).patch_nodes.divisions.max() > 1  # a lattice
     got = gather_indirect(problem, state.radiosity, zero, P, N, 256)[:, 0]
     assert np.abs(got - exact).max() < 0.01 * scale
-    monkeypatch.setattr(gather, "LATTICE_REACH", 0.0)
+    monkeypatch.setattr(lattice, "LATTICE_REACH", 0.0)
     smeared = gather_indirect(problem, state.radiosity, zero, P, N, 256)[:, 0]
     assert np.abs(smeared - exact).max() > 0.03 * scale

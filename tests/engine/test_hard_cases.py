@@ -9,10 +9,13 @@ import pytest
 from reference import analytic
 
 import scenes
-from ovrad_addon.atlas import Atlas, build_atlas
-from ovrad_addon.pipeline import SolveSettings, prepare, radiance_at, solve
-from ovrad_addon.settings import AtlasSettings
-from ovrad_addon.surfaces import Surfaces
+from ovrad_addon.atlas.patches import Atlas
+from ovrad_addon.bake.points import radiance_at
+from ovrad_addon.generate.build import build_atlas
+from ovrad_addon.radiosity.first_shot import solve
+from ovrad_addon.radiosity.problem import prepare
+from ovrad_addon.scene.surfaces import Surfaces
+from ovrad_addon.settings import AtlasSettings, SolveSettings
 
 LE = 1.0
 

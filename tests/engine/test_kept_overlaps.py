@@ -10,16 +10,17 @@ import pytest
 from scipy.sparse import csr_matrix
 
 import scenes
-from ovrad_addon import contact as contact_mod
 from ovrad_addon import settings as settings_mod
-from ovrad_addon.atlas import build_atlas_and_overlaps
-from ovrad_addon.contact import CUT, WHOLE, contact_flags, contacts
-from ovrad_addon.kept_overlaps import KeptOverlaps, keep, kept_form, usable
+from ovrad_addon.generate.build import build_atlas_and_overlaps
 from ovrad_addon.names import SHAPE_BALL
-from ovrad_addon.overlap import overlap_matrix
-from ovrad_addon.pipeline import SolveSettings, attach_sheets, both_sides_index, locate, prepare, solve
-from ovrad_addon.settings import COARSE_QUADRATURE, FINE_QUADRATURE, AtlasSettings
-from ovrad_addon.surfaces import Surfaces
+from ovrad_addon.overlap.contacts import CUT, WHOLE, contact_flags, contacts
+from ovrad_addon.overlap.contacts import contacts as contact_mod
+from ovrad_addon.overlap.kept import KeptOverlaps, keep, kept_form, usable
+from ovrad_addon.overlap.matrix import overlap_matrix
+from ovrad_addon.radiosity.first_shot import solve
+from ovrad_addon.radiosity.problem import attach_sheets, both_sides_index, locate, prepare
+from ovrad_addon.scene.surfaces import Surfaces
+from ovrad_addon.settings import COARSE_QUADRATURE, FINE_QUADRATURE, AtlasSettings, SolveSettings
 
 SETTINGS = AtlasSettings(patch_count=500)
 QUADRATURE = SETTINGS.rule_order(SETTINGS.patch_count)  # a small atlas: the fine rule
@@ -241,7 +242,7 @@ def test_a_solve_takes_the_kept_contacts(built, monkeypatch):
 
     expected = fresh(atlas)
     with monkeypatch.context() as m:
-        m.setattr(contact_mod, "_rule", lambda *a, **k: pytest.fail("contacts found again"))
+        m.setattr(contact_mod, "coarse_rule", lambda *a, **k: pytest.fail("contacts found again"))
         problem = prepare(s, atlas, FAST, kept=kept)
         assert problem.kept == len(atlas)
         same(contacts(problem.atlas, problem.index), expected)
@@ -293,7 +294,7 @@ def test_patches_holding_almost_none_of_their_support_are_dropped(monkeypatch):
     left free to ring in the solve). With the share raised to catch some in the busy room (smooth
     beta): none kept is under it, some were dropped, and the C kept is the one a solve integrates
     on the stored atlas, its dropped patches' neighbours integrated again without them."""
-    from ovrad_addon import atlas as atlas_mod
+    from ovrad_addon.generate import build as atlas_mod
 
     s = busy_room()
     settings = replace(SETTINGS, beta="smooth")

@@ -6,11 +6,12 @@ import numpy as np
 import pytest
 
 import scenes
-from ovrad_addon.atlas import build_atlas, index_surfaces
-from ovrad_addon.contact import seen_members
-from ovrad_addon.overlap import alpha_at
+from ovrad_addon.atlas.index import index_surfaces
+from ovrad_addon.atlas.support import alpha_from_pairs, pair_beta
+from ovrad_addon.generate.build import build_atlas
+from ovrad_addon.overlap.contacts import seen_members
+from ovrad_addon.overlap.queries import alpha_at
 from ovrad_addon.settings import AtlasSettings, ObjectSettings
-from ovrad_addon.support import alpha_from_pairs, pair_beta
 
 
 def brute_alpha(atlas, index, pts, tri, side):

@@ -8,28 +8,21 @@ import pytest
 from reference import analytic
 
 import scenes
-from ovrad_addon import pipeline, transport
-from ovrad_addon.atlas import build_atlas
-from ovrad_addon.direct import direct_irradiance, triangle_normals
+from ovrad_addon.bake.lattice import may_see_sky
+from ovrad_addon.bake.points import irradiance_at, radiance_at
 from ovrad_addon.errors import OvradError
-from ovrad_addon.gather import may_see_sky
-from ovrad_addon.lights import Lamp, lamp_irradiance
-from ovrad_addon.overlap import alpha_at
-from ovrad_addon.pipeline import (
-    SKY_SHARE,
-    SolveSettings,
-    direct_light,
-    irradiance_at,
-    patch_emission,
-    prepare,
-    radiance_at,
-    sky_patches,
-    solve,
-)
-from ovrad_addon.settings import AtlasSettings
-from ovrad_addon.sky import Sky
-from ovrad_addon.surfaces import Surfaces
-from ovrad_addon.transport import SKY_TEST_RAYS
+from ovrad_addon.generate.build import build_atlas
+from ovrad_addon.light.direct import direct_irradiance, triangle_normals
+from ovrad_addon.light.lamps import Lamp, lamp_irradiance
+from ovrad_addon.light.sky import Sky
+from ovrad_addon.overlap.queries import alpha_at
+from ovrad_addon.radiosity import first_shot, transport
+from ovrad_addon.radiosity.emission import SKY_SHARE, patch_emission, sky_patches
+from ovrad_addon.radiosity.first_shot import direct_light, solve
+from ovrad_addon.radiosity.problem import prepare
+from ovrad_addon.radiosity.transport import SKY_TEST_RAYS
+from ovrad_addon.scene.surfaces import Surfaces
+from ovrad_addon.settings import AtlasSettings, SolveSettings
 
 RHO = 0.8
 
@@ -119,8 +112,8 @@ def test_every_lamp_lights_a_plane_as_its_closed_form(lit_plane, kind, budget, m
     pts = central_points()
     if budget == "tight":
         # a shadow-ray budget of 4 200 rays for 51 200 receiver points: lamps take fewer samples
-        # at every point (not fewer points: pipeline.first_shot_points)
-        monkeypatch.setattr(pipeline, "SHADOW_BUDGET", 5e-4)
+        # at every point (not fewer points: first_shot.first_shot_points)
+        monkeypatch.setattr(first_shot, "SHADOW_BUDGET", 5e-4)
     got, state = irradiance(problem, lamp, pts)
     want = exact(pts)
     # Baked light is a blend of patch averages (patches about 0.1 m here): measured 1.6-2.6 %
@@ -367,8 +360,8 @@ def test_the_first_shot_under_a_tight_budget_thins_its_points_and_bakes_the_same
     pts, tri = scenes.sample_surface(s, 3000, seed=3)
     light = direct_light(problem, (), SolveSettings())
     out = {}
-    for budget in (pipeline.SHADOW_BUDGET, 1e-3):
-        monkeypatch.setattr(pipeline, "SHADOW_BUDGET", budget)
+    for budget in (first_shot.SHADOW_BUDGET, 1e-3):
+        monkeypatch.setattr(first_shot, "SHADOW_BUDGET", budget)
         state = solve(problem, settings=settings)
         baked = radiance_at(problem, state.radiosity, pts, tri, 1, state.first_shot, light)
         out[budget] = state.rays - problem.rays, baked, radiance_at(problem, state.radiosity, pts, tri, 1)

@@ -5,7 +5,7 @@ import threading
 import numpy as np
 import pytest
 
-from ovrad_addon.rays import has_embree, make_rays
+from ovrad_addon.scene.rays import has_embree, make_rays
 
 
 @pytest.mark.skipif(not has_embree(), reason="embreex not installed")

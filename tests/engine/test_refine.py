@@ -5,15 +5,15 @@ closed form)."""
 import numpy as np
 import pytest
 from test_contact import two_rooms
-from test_direct import RHO, _closed_form_direct, shadowed_plane_scene
+from test_direct import RHO, closed_form_direct, shadowed_plane_scene
 
 import scenes
-from ovrad_addon.atlas import build_atlas
-from ovrad_addon.overlap import alpha_at, reconstruct
-from ovrad_addon.pipeline import SolveSettings, prepare
-from ovrad_addon.refine import children, indicator, refine, solve_adaptive
-from ovrad_addon.settings import AtlasSettings
-from ovrad_addon.surfaces import Surfaces
+from ovrad_addon.generate.build import build_atlas
+from ovrad_addon.generate.refine import children, indicator, refine, solve_adaptive
+from ovrad_addon.overlap.queries import alpha_at, reconstruct
+from ovrad_addon.radiosity.problem import prepare
+from ovrad_addon.scene.surfaces import Surfaces
+from ovrad_addon.settings import AtlasSettings, SolveSettings
 
 
 def test_children_cover_their_parent():
@@ -129,7 +129,7 @@ def test_refining_at_a_shadow_edge_lowers_the_error_there(beta):
     s, lamp = shadowed_plane_scene()
     rng = np.random.default_rng(7)
     pts = np.column_stack([rng.uniform(-1.2, 1.2, 20000), rng.uniform(-1.2, 1.2, 20000), np.zeros(20000)])
-    exact, margin = _closed_form_direct(pts, np.array(lamp.position), lamp.power)
+    exact, margin = closed_form_direct(pts, np.array(lamp.position), lamp.power)
     want = RHO * exact / np.pi
     edge = margin < 0.1  # within 10 cm of the shadow's edge (the occluder's plane)
 
@@ -147,6 +147,6 @@ def test_refining_at_a_shadow_edge_lowers_the_error_there(beta):
     assert adaptive < 0.7 * coarse
     # the new patches went to the edge: small ones lie near it, the far field kept its patches
     small = after.radii < 0.75 * before.radii.min()
-    _, near_edge = _closed_form_direct(after.centers, np.array(lamp.position), lamp.power)
+    _, near_edge = closed_form_direct(after.centers, np.array(lamp.position), lamp.power)
     assert small.sum() > 100 and np.median(near_edge[small]) < 0.15
     assert len(after) < 8 * len(before)

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from ovrad_addon.geometry import tangent_frame
-from ovrad_addon.lights import cone_directions, shadow_origin
-from ovrad_addon.transport import cosine_directions
+from ovrad_addon.light.lamps import cone_directions, shadow_origin
+from ovrad_addon.radiosity.transport import cosine_directions
 
 
 def unit_vectors(count, seed):

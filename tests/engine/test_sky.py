@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from ovrad_addon.errors import OvradError
-from ovrad_addon.rays import make_rays
-from ovrad_addon.sky import Sky, _equirect_uv, fibonacci_sphere, sky_directions, sky_irradiance
+from ovrad_addon.light.sky import Sky, equirect_uv, fibonacci_sphere, sky_directions, sky_irradiance
+from ovrad_addon.scene.rays import make_rays
 from scenes import cube
 
 # One small triangle far below: a scene for the ray backend that hides nothing above z = 0.
@@ -70,7 +70,7 @@ def test_turning_the_map_turns_the_light():
 def test_pixel_centres_map_back_to_their_pixel():
     h, w = 16, 32
     d, _ = _pixel_grid(h, w)
-    u, v = _equirect_uv(d.reshape(-1, 3), 0.0)
+    u, v = equirect_uv(d.reshape(-1, 3), 0.0)
     rows, cols = np.divmod(np.arange(h * w), w)
     np.testing.assert_array_equal(np.floor(u * w).astype(int), cols)
     np.testing.assert_array_equal(np.floor(v * h).astype(int), rows)

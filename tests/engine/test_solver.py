@@ -6,15 +6,17 @@ import numpy as np
 import pytest
 
 import scenes
-from ovrad_addon.atlas import build_atlas, index_surfaces
+from ovrad_addon.atlas.index import index_surfaces
 from ovrad_addon.errors import OvradError
-from ovrad_addon.lights import area_side
-from ovrad_addon.overlap import alpha_at, overlap_matrix, patch_average, reconstruct
-from ovrad_addon.pipeline import within_budget
+from ovrad_addon.generate.build import build_atlas
+from ovrad_addon.light.lamps import area_side
+from ovrad_addon.overlap.matrix import overlap_matrix
+from ovrad_addon.overlap.queries import alpha_at, patch_average, reconstruct
+from ovrad_addon.radiosity.first_shot import within_budget
+from ovrad_addon.radiosity.solver import shooters, solve_direct, solve_progressive
+from ovrad_addon.radiosity.transport import capped, gather_transport, thinned_points
+from ovrad_addon.scene.surfaces import Surfaces
 from ovrad_addon.settings import AtlasSettings
-from ovrad_addon.solver import shooters, solve_direct, solve_progressive
-from ovrad_addon.surfaces import Surfaces
-from ovrad_addon.transport import capped, gather_transport, thinned_points
 
 
 def prepare(surfaces, **settings):

@@ -7,12 +7,14 @@ from reference import analytic
 from scipy.ndimage import map_coordinates
 
 import scenes
-from ovrad_addon.albedo import TextureAlbedo
-from ovrad_addon.atlas import build_atlas
-from ovrad_addon.lights import Lamp
-from ovrad_addon.pipeline import SolveSettings, direct_light, prepare, radiance_at, solve
-from ovrad_addon.settings import AtlasSettings
-from ovrad_addon.surfaces import Surfaces
+from ovrad_addon.bake.points import radiance_at
+from ovrad_addon.generate.build import build_atlas
+from ovrad_addon.light.lamps import Lamp
+from ovrad_addon.radiosity.first_shot import direct_light, solve
+from ovrad_addon.radiosity.problem import prepare
+from ovrad_addon.scene.albedo import TextureAlbedo
+from ovrad_addon.scene.surfaces import Surfaces
+from ovrad_addon.settings import AtlasSettings, SolveSettings
 
 SIZE = 4.0  # the plane spans [-2, 2]^2, one repeat of the texture
 LAMP = Lamp("POINT", position=(0.3, -0.2, 1.0), power=500.0)

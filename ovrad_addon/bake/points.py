@@ -1,0 +1,217 @@
+"""Radiance and irradiance at bake points (vertices, texels): direct light computed where they are,
+the indirect light from the final gather, or from the patches when the gather is off."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from ..errors import OvradError
+from ..light.direct import DirectLight, direct_irradiance, triangle_normals
+from ..overlap.queries import alpha_at, reconstruct
+from ..radiosity.emission import bake_sky, own_emission, patch_emission
+from ..radiosity.first_shot import emitter_sample_count
+from ..radiosity.problem import Problem
+from ..scene.surfaces import Surfaces
+from .gather import NEAR_LIGHT_SAMPLES, NEAR_PICKED_SAMPLES, NEAR_SKY_SAMPLES, gather_axis, gather_unique
+from .lattice import NearField, may_see_sky
+
+
+def without_area(problem: Problem, triangles) -> np.ndarray:
+    """(m,) bool: triangles (m,) without area (no chart: three points on a line; see bake_normals)."""
+    return problem.index.charts.chart[np.asarray(triangles, np.int64)] < 0
+
+
+def bake_sides(problem: Problem, triangles) -> np.ndarray:
+    """(m,) int64 +1 or -1: the side of each triangle a bake reconstructs, the front where the
+    front sheet of its chart holds patches, else the back (an open mesh whose patches lie on its
+    back only); the front of a triangle without area (bake_normals). One rule for every bake point
+    of a triangle, so vertices and texels agree."""
+    tri = np.asarray(triangles, np.int64)
+    index = problem.index
+    occupied = np.bincount(problem.atlas.sheet, minlength=len(index.sheet_chart)) > 0
+    front = index.sheet_of(tri, np.ones(len(tri), np.int64))
+    lit_front = ((front >= 0) & occupied[np.maximum(front, 0)]) | without_area(problem, tri)
+    return np.where(lit_front, 1, -1).astype(np.int64)
+
+
+def bake_normals(problem: Problem, triangles, sides) -> np.ndarray:
+    """(m, 3) unit normals a bake sees triangles (m,) by, from their sides (m,) (bake_sides). A
+    triangle without area (three points on a line) has no normal of its own: like Blender, which
+    shades such a face as facing +Z, its points are lit as a point facing +Z (not left black: a
+    vertex of zero-area triangles only is still a vertex of the mesh, and Cycles bakes it lit)."""
+    tri = np.asarray(triangles, np.int64)
+    normals = triangle_normals(problem.surfaces, tri) * np.asarray(sides)[:, None]
+    normals[without_area(problem, tri)] = (0.0, 0.0, 1.0)
+    return normals
+
+
+def _at_points(
+    problem: Problem,
+    radiosity,
+    points,
+    triangles,
+    sides,
+    first_shot,
+    light,
+    gather_points=None,
+    indirect=None,
+    gather_normals=None,
+    corner_cache=None,
+):
+    """What both reconstructions need at surface points: triangles (m,), alpha (m, n), the
+    coefficients the patches reconstruct, and the direct irradiance (m, 3) computed at the points
+    where the solve's first shot is split off (else None). gather_points (m, 3): where the final
+    gather casts its rays from (default: the points), gathered once per distinct position and normal;
+    indirect (m, 3): the gathered irradiance itself, computed by the caller (e.g. at fewer points
+    and interpolated), used instead of gathering; gather_normals (m, k, 3): the weighted normals each
+    point's gather stands for (gather.shared_normals; default: the point's own normal). corner_cache:
+    see gather.gather_indirect (a dict kept over one bake's calls)."""
+    tri = np.asarray(triangles, np.int64)
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    side = np.broadcast_to(np.asarray(sides), tri.shape)
+    a = alpha_at(problem.atlas, problem.index, pts, tri, side)
+    if first_shot is None or light is None:
+        return tri, a, radiosity, None
+    if first_shot.shape != radiosity.shape:
+        raise OvradError("the first shot does not match the radiosity: solve again")
+    normals = bake_normals(problem, tri, side)
+    seen = bake_sky(problem, light, radiosity)
+    sky_at = may_see_sky(a, seen)
+    H = direct_irradiance(problem.surfaces, problem.index.rays, light, pts, normals, sky_at)[0]
+    covered = np.asarray(a.sum(axis=1)).ravel() > 0
+    coeffs = radiosity - first_shot
+    # --- final gather (gather.py): the indirect light comes from rays cast at the points, the
+    # patches give only the points' own emission; a point needs no patch, only a lit side (sheet)
+    if light.gather_rays > 0:
+        index = problem.index
+        own = own_emission(problem, light.emitters, light.emission_scale)
+        coeffs = patch_emission(problem, light.emission_scale)
+        if indirect is not None:
+            H = H + np.asarray(indirect, np.float64).reshape(-1, 3)
+        else:
+            near = None
+            if light.near_field:
+                few = min(light.samples, NEAR_LIGHT_SAMPLES)
+                near_light = replace(
+                    light,
+                    samples=few,
+                    emitter_samples=emitter_sample_count(
+                        problem.surfaces, light, min(light.samples, NEAR_PICKED_SAMPLES), few
+                    ),
+                    sky_samples=min(light.sky_samples, NEAR_SKY_SAMPLES),
+                    area_jittered=True,
+                )
+                near = NearField(near_light, radiosity - first_shot - coeffs, coeffs - own, sky_seen=seen)
+            at = pts if gather_points is None else np.asarray(gather_points, np.float64).reshape(-1, 3)
+            if gather_normals is None:
+                H = H + gather_unique(
+                    problem,
+                    radiosity,
+                    own,
+                    at,
+                    normals,
+                    light.gather_rays,
+                    tri,
+                    near=near,
+                    corner_cache=corner_cache,
+                )
+            else:
+                spread = np.asarray(gather_normals, np.float64)
+                spread = spread.reshape(len(pts), spread.shape[-2], 3)
+                axis = gather_axis(spread)
+                rays = light.gather_rays
+                H = H + gather_unique(
+                    problem,
+                    radiosity,
+                    own,
+                    at,
+                    axis,
+                    rays,
+                    tri,
+                    near=near,
+                    spread=spread,
+                    corner_cache=corner_cache,
+                )
+        covered = (index.sheet_of(tri, side) >= 0) | without_area(problem, tri)  # see bake_normals
+    # --- end of final gather
+    return tri, a, coeffs, np.where(covered[:, None], H, 0.0)
+
+
+def radiance_at(
+    problem: Problem,
+    radiosity: np.ndarray,
+    points,
+    triangles,
+    sides=1,
+    first_shot: np.ndarray | None = None,
+    light: DirectLight | None = None,
+    gather_points=None,
+    indirect=None,
+    gather_normals=None,
+    corner_cache=None,
+) -> np.ndarray:
+    """Outgoing radiance L = B / pi (m, 3) reconstructed at surface points; 0 where no patch covers.
+
+    With the solve's first shot and its direct light, the points get their direct light computed
+    where they are (shadow rays) and only the rest of the radiosity from the patches. The light a
+    point reflects is its own albedo (surfaces.reflectance_at: a texture's where there is one)
+    times the irradiance there. gather_points, indirect, gather_normals: where and about what the
+    final gather casts, or its result; corner_cache: a dict kept over one bake's calls (see
+    _at_points).
+    """
+    gather = (gather_points, indirect, gather_normals, corner_cache)
+    tri, a, coeffs, H = _at_points(problem, radiosity, points, triangles, sides, first_shot, light, *gather)
+    surfaces = problem.surfaces
+    albedo = surfaces.reflectance_at(tri, np.asarray(points, np.float64).reshape(-1, 3))
+    out = reconstruct(a, coeffs)
+    textured = _textured(surfaces, tri)
+    if np.any(textured):
+        # a patch holds its mean albedo x its light: the reflected light the patches reconstruct
+        # on a textured triangle takes the texture's detail, as albedo(M) / the triangle's mean
+        E = patch_emission(problem, light.emission_scale if light is not None else 1.0)
+        reflected = reconstruct(a[textured], coeffs - E)
+        rho = surfaces.reflectance[tri[textured]]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            gain = np.where(rho > 0, albedo[textured] / rho, 0.0)
+        out[textured] += reflected * (gain - 1.0)
+    if H is not None:
+        out += albedo * H
+    return out / np.pi
+
+
+def _textured(surfaces: Surfaces, triangles: np.ndarray) -> np.ndarray:
+    """(m,) bool: which of the triangles have an albedo texture."""
+    if surfaces.albedo is None:
+        return np.zeros(len(triangles), bool)
+    return surfaces.albedo.image_of[triangles] >= 0
+
+
+def irradiance_at(
+    problem: Problem,
+    radiosity: np.ndarray,
+    points,
+    triangles,
+    sides=1,
+    first_shot: np.ndarray | None = None,
+    light: DirectLight | None = None,
+    gather_points=None,
+    indirect=None,
+    gather_normals=None,
+    corner_cache=None,
+) -> np.ndarray:
+    """Light arriving at surface points without the surface's albedo: H / pi (m, 3), in the units
+    of radiance (a white surface's radiance), from B(M) - E(M) = rho(M) H(M); 0 where rho is 0
+    (direct light at the points where it is split off, as in radiance_at). On a textured triangle
+    the patches' reflected light is divided by the triangle's mean albedo, what they hold."""
+    gather = (gather_points, indirect, gather_normals, corner_cache)
+    tri, a, coeffs, H = _at_points(problem, radiosity, points, triangles, sides, first_shot, light, *gather)
+    E = patch_emission(problem, light.emission_scale if light is not None else 1.0)
+    reflected = reconstruct(a, coeffs - E)
+    rho = problem.surfaces.reflectance[tri]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = np.where(rho > 0, reflected / rho, 0.0)
+    if H is not None:
+        out += H
+    return out / np.pi

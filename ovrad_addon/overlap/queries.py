@@ -1,0 +1,120 @@
+"""Point queries on an atlas: alpha at surface points, the patches a ray lands in, coarse rules on
+every support (support_points), per-patch averages of per-triangle values and reconstruction."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields, replace
+
+import numpy as np
+from scipy.sparse import csr_matrix
+
+from ..atlas.support import alpha_from_pairs, pair_beta
+from .contacts import contacts, seen_members
+from .quadrature import patch_quadrature
+from .rule import Quadrature
+
+
+def alpha_at(atlas, index, points: np.ndarray, triangle: np.ndarray, side) -> csr_matrix:
+    """alpha_i at surface points (m x n sparse): points (m, 3) on `triangle` (m,), seen from side (m,) +-1."""
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    tri = np.asarray(triangle, np.int64)
+    side = np.broadcast_to(np.asarray(side), tri.shape)
+    sheets = index.sheet_of(tri, side)
+    nrm = np.take(index.charts.normals, np.maximum(tri, 0), axis=0) * np.where(side < 0, -1.0, 1.0)[:, None]
+    rows, cols = atlas.grid.candidates(pts, sheets)
+    at = np.take(pts, rows, axis=0)
+    member, b = pair_beta(atlas, cols, at, np.take(nrm, rows, axis=0), None, atlas.beta)
+    member = seen_members(atlas, index, rows, cols, at, member)
+    return alpha_from_pairs(rows, cols, member, b, (len(pts), len(atlas)))
+
+
+@dataclass(frozen=True)
+class RayHits:
+    """Where rays landed: ray (k,) index of each ray that hit, t (k,) its distance, points (k, 3),
+    triangle (k,), and side (k,) +-1, the side of the triangle the ray arrives at."""
+
+    ray: np.ndarray
+    t: np.ndarray
+    points: np.ndarray
+    triangle: np.ndarray
+    side: np.ndarray
+
+
+def ray_hits(index, origins: np.ndarray, directions: np.ndarray) -> RayHits:
+    """Cast rays (origins, unit directions (m, 3)) to the surfaces: the hits where the transport
+    and the final gather look alpha up (alpha_at), on the side they arrive at."""
+    t, tri = index.rays.closest_hit(origins, directions, np.inf)
+    hit = np.flatnonzero(tri >= 0)
+    tri = tri[hit]
+    d = np.take(directions, hit, axis=0)
+    side = np.where(np.einsum("ij,ij->i", d, np.take(index.charts.normals, tri, axis=0)) < 0, 1, -1)
+    t = t[hit]
+    return RayHits(hit, t, np.take(origins, hit, axis=0) + t[:, None] * d, tri, side)
+
+
+def reconstruct(alpha: csr_matrix, values: np.ndarray) -> np.ndarray:
+    """f(M) = sum_i alpha_i(M) f_i for per-patch values (n,) or (n, c); 0 where no patch covers M."""
+    return alpha @ np.asarray(values, np.float64)
+
+
+FINER_RINGS = 4  # rings grow this many times per pass for supports a coarse rule missed
+
+MAX_RINGS = 256
+
+
+def support_points(atlas, index, q: int, rings: int, ids: np.ndarray | None = None) -> Quadrature:
+    """A coarse rule (q, rings) on every patch's support, its points on the support only (weight
+    > 0; owner: the patch; no neighbour slots). A patch much larger than its support (a disk on a
+    leaf a fifth of its size, a square on a small cube's face) may have no coarse point on it: its
+    rings are made FINER_RINGS times finer until some are (up to MAX_RINGS), as C's rule found it.
+    Without points a patch got no transport receivers, so no light, and none of the per-patch
+    means (emission, albedo): 1 365 of the production room's 9 478 patches at a target of 8 000
+    had none, and its leaves baked 11 % too dark. ids: only these patches (owner still indexes the
+    atlas); all by default."""
+    ids = np.arange(len(atlas)) if ids is None else np.asarray(ids, np.int64)
+    seen = contacts(atlas, index)
+    first = _on_support(patch_quadrature(atlas, index, ids, q, rings=rings, visibility=seen))
+    parts = [replace(first, owner=ids[first.owner])]
+    missing = np.zeros(len(atlas), bool)
+    missing[ids] = atlas.support_area[ids] > 0
+    missing[parts[0].owner] = False
+    while np.any(missing) and rings < MAX_RINGS:
+        rings *= FINER_RINGS
+        where = np.flatnonzero(missing)
+        finer = _on_support(patch_quadrature(atlas, index, where, q, rings=rings, visibility=seen))
+        parts.append(replace(finer, owner=where[finer.owner]))
+        missing[where[finer.owner]] = False
+    if len(parts) == 1:
+        return parts[0]
+    return Quadrature(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(Quadrature)))
+
+
+def _on_support(quad: Quadrature) -> Quadrature:
+    """The rule points of quad that lie on the supports (weight > 0). Field by field, each full
+    array released as soon as it is cut (100 k patches: the full rule is about 0.5 GB)."""
+    arrays = {f.name: getattr(quad, f.name) for f in fields(Quadrature)}
+    del quad  # the caller passes a temporary: these are now the only references
+    on = arrays["weights"] > 0
+    return Quadrature(**{name: arrays.pop(name)[on] for name in list(arrays)})
+
+
+def patch_average(atlas, index, per_triangle: np.ndarray, q: int = 4) -> np.ndarray:
+    """Area-weighted mean over each patch's support of a per-triangle quantity (T, c) -> (n, c).
+
+    A support lies on its patch's sheet, so only patches of sheets with a nonzero triangle are
+    integrated (the rest are 0): a room's emission is on its lamps' few patches (at 100 k patches
+    the whole rule took ~8 s per per-patch mean the vertex bake asked for)."""
+    vals = np.asarray(per_triangle, np.float64)
+    out = np.zeros((len(atlas), vals.shape[1]))
+    nonzero = np.flatnonzero(np.any(vals != 0, axis=1))
+    if len(atlas) == 0 or len(nonzero) == 0:
+        return out
+    sheets = np.concatenate([index.sheet_of(nonzero, np.full(len(nonzero), s)) for s in (1, -1)])
+    ids = np.flatnonzero(np.isin(atlas.sheet, sheets[sheets >= 0]))
+    if len(ids) == 0:
+        return out
+    quad = support_points(atlas, index, q, max(q // 2, 1), ids)
+    w = quad.weights
+    np.add.at(out, quad.owner, vals[quad.triangle] * w[:, None])
+    area = np.bincount(quad.owner, weights=w, minlength=len(atlas))
+    return out / np.maximum(area, 1e-300)[:, None]

@@ -1,0 +1,124 @@
+"""Textured albedo: image textures on triangles, sampled where light is reflected.
+
+A surface whose colour comes from an image has no single reflectance: the bake needs the albedo
+at each vertex or texel, and the transport the mean albedo over each patch's support (taken at
+the patch's receiver points). Images are linear RGB (the reader converts sRGB as Cycles does),
+sampled bilinearly between texel centres with wrap-around, which is what Cycles' Image Texture
+does with its default Linear interpolation and Repeat extension.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..digest import add_array, hasher
+from ..errors import OvradError
+from ..geometry import subtriangle_centroids
+
+
+@dataclass(frozen=True, eq=False)
+class TextureAlbedo:
+    """images: linear RGB albedo maps, each (h, w, 3), row 0 at the bottom (Blender's order);
+    image_of: (T,) int64, the map of each triangle (-1: its constant reflectance); uv: (T, 3, 2)
+    texture coordinates of each triangle's corners; tint: (T, 3) factor applied to the map (1 for a
+    plain texture)."""
+
+    images: tuple = field(repr=False)
+    image_of: np.ndarray = field(repr=False)
+    uv: np.ndarray = field(repr=False)
+    tint: np.ndarray = field(repr=False)
+
+    def __post_init__(self) -> None:
+        n = len(self.image_of)
+        if self.uv.shape != (n, 3, 2) or self.tint.shape != (n, 3):
+            raise OvradError("texture albedo: uv must be (T, 3, 2) and tint (T, 3)")
+        if n and self.image_of.max(initial=-1) >= len(self.images):
+            raise OvradError("texture albedo: a triangle refers to a missing image")
+        for img in self.images:
+            if img.ndim != 3 or img.shape[2] != 3 or min(img.shape[:2]) < 1:
+                raise OvradError(f"texture albedo: images must be (h, w, 3), got {img.shape}")
+
+    def key(self) -> bytes:
+        """Bytes that change when any map, assignment or UV changes (for cache keys)."""
+        h = hasher(16)
+        for a in (*self.images, self.image_of, self.uv, self.tint):
+            add_array(h, a, dtype=False)
+        return h.digest()
+
+
+def bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Colours (m, 3) of an (h, w, 3) image at texture coordinates (m, 2), texel centres at
+    (i + 0.5) / w, wrapping around (Repeat)."""
+    h, w = image.shape[:2]
+    x = uv[:, 0] * w - 0.5
+    y = uv[:, 1] * h - 0.5
+    x0, y0 = np.floor(x), np.floor(y)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    x0, y0 = x0.astype(np.int64), y0.astype(np.int64)
+    c0, c1 = x0 % w, (x0 + 1) % w
+    r0, r1 = y0 % h, (y0 + 1) % h
+    top = image[r1, c0] * (1 - fx) + image[r1, c1] * fx
+    bottom = image[r0, c0] * (1 - fx) + image[r0, c1] * fx
+    return bottom * (1 - fy) + top * fy
+
+
+def barycentric(corners: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Barycentric weights (m, 3) of points (m, 3) projected on triangles (m, 3, 3); degenerate
+    triangles give their first corner."""
+    a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
+    e1, e2, p = b - a, c - a, points - a
+    d11 = np.einsum("ij,ij->i", e1, e1)
+    d12 = np.einsum("ij,ij->i", e1, e2)
+    d22 = np.einsum("ij,ij->i", e2, e2)
+    p1 = np.einsum("ij,ij->i", p, e1)
+    p2 = np.einsum("ij,ij->i", p, e2)
+    det = d11 * d22 - d12 * d12
+    ok = det > 1e-30 * np.maximum(d11 * d22, 1e-300)
+    safe = np.where(ok, det, 1.0)
+    v = np.where(ok, (d22 * p1 - d12 * p2) / safe, 0.0)
+    w = np.where(ok, (d11 * p2 - d12 * p1) / safe, 0.0)
+    return np.column_stack([1.0 - v - w, v, w])
+
+
+def albedo_at(
+    textures: TextureAlbedo | None,
+    reflectance: np.ndarray,
+    corners: np.ndarray,
+    triangles: np.ndarray,
+    points: np.ndarray,
+) -> np.ndarray:
+    """Albedo (m, 3) at surface points on `triangles` (m,): the texture where the triangle has one,
+    else the triangle's constant reflectance (T, 3). corners: (T, 3, 3) of all triangles."""
+    tri = np.asarray(triangles, np.int64)
+    out = np.asarray(reflectance, np.float64)[tri].copy()
+    if textures is None or len(tri) == 0:
+        return out
+    which = textures.image_of[tri]
+    for k in np.unique(which[which >= 0]):
+        sel = np.flatnonzero(which == k)
+        t = tri[sel]
+        bary = barycentric(corners[t], np.asarray(points, np.float64).reshape(-1, 3)[sel])
+        uv = np.einsum("mk,mkj->mj", bary, textures.uv[t])
+        colour = bilinear(np.asarray(textures.images[k], np.float64), uv) * textures.tint[t]
+        out[sel] = np.clip(colour, 0.0, 1.0)
+    return out
+
+
+def triangle_means(
+    textures: TextureAlbedo, reflectance: np.ndarray, corners: np.ndarray, k: int = 4
+) -> np.ndarray:
+    """Each triangle's mean albedo (T, 3) over the centroids of its k^2 sub-triangles (the constant
+    reflectance where it has no texture): what emission-free per-triangle code paths use."""
+    uv = subtriangle_centroids(k)
+    bary = np.column_stack([1 - uv.sum(axis=1), uv])  # (s, 3)
+    out = np.asarray(reflectance, np.float64).copy()
+    tri = np.flatnonzero(textures.image_of >= 0)
+    if len(tri) == 0:
+        return out
+    pts = np.einsum("sk,tkj->tsj", bary, corners[tri]).reshape(-1, 3)
+    rep = np.repeat(tri, len(bary))
+    vals = albedo_at(textures, reflectance, corners, rep, pts).reshape(len(tri), len(bary), 3)
+    out[tri] = vals.mean(axis=1)
+    return out
