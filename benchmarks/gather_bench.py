@@ -44,6 +44,7 @@ def main(argv: list[str]) -> int:
     speed_vs_error.ovrad_package()
     from ovrad.ovrad_addon import (
         AtlasSettings,
+        BakeRequest,
         SolveSettings,
         build_atlas,
         direct_light,
@@ -63,7 +64,7 @@ def main(argv: list[str]) -> int:
     for rays in a.rays:
         light = direct_light(problem, lamps, SolveSettings(gather_rays=rays))
         t = time.perf_counter()
-        L = radiance_at(problem, state.radiosity, points, tri, 1, state.first_shot, light)
+        L = radiance_at(problem, BakeRequest(state.radiosity, state.first_shot, light), points, tri, 1)
         bake_s = time.perf_counter() - t
         row = dict(patches=len(atlas), rays=rays, solve_s=round(base_s, 2), bake_s=round(bake_s, 2))
         for key, m in masks.items():

@@ -1,12 +1,12 @@
 """The real-scenes set: small scenes of the kinds users bring, built in code (bpy), one per class.
 
-Each builder fills an empty factory file with one class of scene that broke ovrad once (see the
-README's "Real scenes" table): a partition with a doorway, a box resting on a floor that runs under
-it and a shelf against a wall, an emitter filling an opening of the ceiling, an emitter, a board
-and a picture hung a hair off the ceiling, the floor and a wall (covers), linked duplicates,
-collection instances, a textured floor, and sky light through a window (constant and HDR); and
-lamps_doorway, the doorway's rooms lit by all four lamp types (point, spot, area, and a sun through
-a window), the second scene of benchmarks/speed_vs_error.py.
+Each builder fills an empty factory file with one class of scene that is hard on ovrad (see
+the "Real scenes" table in docs/benchmarks.md): a partition with a doorway, a box resting on a
+floor that runs under it and a shelf against a wall, an emitter filling an opening of the ceiling,
+an emitter, a board and a picture hung a hair off the ceiling, the floor and a wall (covers),
+linked duplicates, collection instances, a textured floor, and sky light through a window
+(constant and HDR); and lamps_doorway, the doorway's rooms lit by all four lamp types (point,
+spot, area, and a sun through a window), the second scene of benchmarks/speed_vs_error.py.
 Rooms are one welded-free mesh per surface grid (every vertex lies on one planar face, as in the
 Cornell benchmark), furniture is welded like a modeller's cube. Every vertex of every baked mesh
 is scored: vertices under a resting box (truth 0), on edges and on rims included. Only emitters
@@ -18,12 +18,16 @@ are not scored (Cycles bakes their reflected light, ovrad adds their emission).
 from __future__ import annotations
 
 import math
+import sys
 from pathlib import Path
 
 import bpy
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "scripts"))
+import make_cornell  # noqa: E402  (scripts/ is not a package)
+
 SCENE_DIR = ROOT / "scenes" / "real"
 SPACING = 0.1  # m: grid cell of room surfaces (a 3 m room: about 5 000 vertices)
 
@@ -35,37 +39,10 @@ BLUE = (0.25, 0.35, 0.7)
 # --------------------------------------------------------------------------- materials
 
 
-def _tree(id_data):
-    if id_data.node_tree is None:
-        id_data.use_nodes = True  # Blender < 5.0
-    return id_data.node_tree
-
-
-def diffuse(name: str, colour) -> bpy.types.Material:
-    """Principled BSDF as a plain Lambert surface (roughness 1, no specular)."""
-    mat = bpy.data.materials.new(name)
-    mat.diffuse_color = (*colour, 1.0)
-    bsdf = next(n for n in _tree(mat).nodes if n.bl_idname == "ShaderNodeBsdfPrincipled")
-    bsdf.inputs["Base Color"].default_value = (*colour, 1.0)
-    bsdf.inputs["Roughness"].default_value = 1.0
-    (bsdf.inputs.get("Specular IOR Level") or bsdf.inputs.get("Specular")).default_value = 0.0
-    return mat
-
-
-def emission(name: str, radiance) -> bpy.types.Material:
-    """An Emission shader of colour x strength = radiance."""
-    strength = max(radiance)
-    mat = bpy.data.materials.new(name)
-    tree = _tree(mat)
-    for n in list(tree.nodes):
-        if n.bl_idname != "ShaderNodeOutputMaterial":
-            tree.nodes.remove(n)
-    out = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial")
-    emit = tree.nodes.new("ShaderNodeEmission")
-    emit.inputs["Color"].default_value = (*(c / strength for c in radiance), 1.0)
-    emit.inputs["Strength"].default_value = strength
-    tree.links.new(emit.outputs["Emission"], out.inputs["Surface"])
-    return mat
+# The materials are the Cornell box's (scripts/make_cornell.py): a Principled BSDF as a plain Lambert
+# surface (roughness 1, no specular), and an Emission shader of colour x strength = radiance.
+diffuse = make_cornell.diffuse_material
+emission = make_cornell.emission_material
 
 
 def checker_image(name: str, size: int = 64, cells: int = 8) -> bpy.types.Image:
@@ -102,7 +79,7 @@ def world(scene, colour=(0.0, 0.0, 0.0), strength: float = 0.0, image=None) -> N
     """The world: a constant Background colour, or an equirectangular Environment Texture."""
     w = bpy.data.worlds.new("World")
     w.color = colour
-    tree = _tree(w)
+    tree = make_cornell.node_tree(w)
     bg = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeBackground")
     bg.inputs["Color"].default_value = (*colour, 1.0)
     bg.inputs["Strength"].default_value = strength

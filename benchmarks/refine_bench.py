@@ -51,9 +51,11 @@ def main(argv: list[str]) -> int:
             t = time.perf_counter()
             if direct == "points":
                 light = engine.direct_light(problem, lamps, settings)
-                L = engine.radiance_at(problem, state.radiosity, points, tri, 1, state.first_shot, light)
+                L = engine.radiance_at(
+                    problem, engine.BakeRequest(state.radiosity, state.first_shot, light), points, tri, 1
+                )
             else:
-                L = engine.radiance_at(problem, state.radiosity, points, tri, 1)
+                L = engine.radiance_at(problem, engine.BakeRequest(state.radiosity), points, tri, 1)
             rec_s = time.perf_counter() - t
             err = scenes.relative_rms(L, ref["radiance"], ref["scored"])
             row = dict(

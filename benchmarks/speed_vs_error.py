@@ -107,7 +107,11 @@ def read_scene(scene, receivers, n_vertices: int):
     ]
     depsgraph = bpy.context.evaluated_depsgraph_get()
     read = scene_io.read_scene(depsgraph, meshes)
-    lamps = scene_io.read_lamps(depsgraph) if hasattr(scene_io, "read_lamps") else ()
+    # the lamps: scene_model reads them (older checkouts: scene_io, or nothing)
+    lamp_reader = next(
+        (m for m in (getattr(pkg.operators, "scene_model", None), scene_io) if hasattr(m, "read_lamps")), None
+    )
+    lamps = lamp_reader.read_lamps(depsgraph) if lamp_reader is not None else ()
     read_s = time.perf_counter() - t
     s = read.surfaces
     return s, lamps, read_s, s.vertices[:n_vertices], vertex_triangles(s, n_vertices), meshes

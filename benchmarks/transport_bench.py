@@ -40,6 +40,7 @@ def one(count: int, beta: str, scene: str) -> dict:
     import scenes
     from ovrad_addon import (
         AtlasSettings,
+        BakeRequest,
         SolveSettings,
         StagePeaks,
         build_atlas_and_overlaps,
@@ -92,13 +93,13 @@ def one(count: int, beta: str, scene: str) -> dict:
     pts, tri = scenes.sample_surface(s, 20000, seed=3)
     recv = s.receiver[s.object_index[tri]]
     pts, tri = pts[recv], tri[recv]
-    L = radiance_at(problem, state.radiosity, pts, tri, 1)
-    L_ref = radiance_at(problem, converged.radiosity, pts, tri, 1)
+    L = radiance_at(problem, BakeRequest(state.radiosity), pts, tri, 1)
+    L_ref = radiance_at(problem, BakeRequest(converged.radiosity), pts, tri, 1)
     err = float(np.sqrt(np.sum((L - L_ref) ** 2) / np.sum(L_ref**2)))
     light = direct_light(problem, (), settings)
     t = time.perf_counter()
     with peaks.stage("bake"):
-        radiance_at(problem, state.radiosity, pts, tri, 1, state.first_shot, light)
+        radiance_at(problem, BakeRequest(state.radiosity, state.first_shot, light), pts, tri, 1)
     t_bake = time.perf_counter() - t
     mb = peaks.mb | {f"prepare_{k}": v for k, v in problem.memory.items()}
     return {

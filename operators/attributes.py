@@ -37,6 +37,36 @@ def atlas_objects(source: str | None = None) -> list:
     return [o for o in bpy.data.objects if is_atlas(o) and (source is None or o[names.PROP_SOURCE] == source)]
 
 
+# Blender's glTF exporter leaves out the objects of a collection of this name (io_scene_gltf2:
+# BLENDER_GLTF_SPECIAL_COLLECTION); it need not be in any scene.
+NOT_EXPORTED = "glTF_not_exported"
+
+
+def keep_out_of_renders(obj) -> None:
+    """An atlas object is a tool of the viewport: it takes no part in renders (F12, EEVEE, Cycles
+    and its bakes) nor in glTF exports. Its viewport display is left as it is."""
+    if not obj.hide_render:
+        obj.hide_render = True
+    coll = bpy.data.collections.get(NOT_EXPORTED)
+    if coll is None or coll.library is not None:
+        coll = bpy.data.collections.new(NOT_EXPORTED)
+    coll.use_fake_user = True  # in no scene: kept in the file by its fake user
+    if coll.objects.get(obj.name) is not obj:
+        coll.objects.link(obj)
+
+
+def keep_atlases_out_of_renders() -> int:
+    """keep_out_of_renders on every atlas object of the file (files made before atlases were kept
+    out render them); returns how many were changed."""
+    coll = bpy.data.collections.get(NOT_EXPORTED)
+    mended = 0
+    for obj in atlas_objects():
+        if not obj.hide_render or coll is None or coll.objects.get(obj.name) is not obj:
+            keep_out_of_renders(obj)
+            mended += 1
+    return mended
+
+
 def ensure_collection(scene) -> bpy.types.Collection:
     """The collection holding atlas objects, linked under the scene's root if it is not in the scene."""
     coll = bpy.data.collections.get(names.COLLECTION)
@@ -190,7 +220,7 @@ def _atlas_mesh(name: str, atlas: Atlas, kept: KeptOverlaps | None = None) -> bp
 def read_kept(obj, start: int) -> KeptOverlaps | None:
     """The overlaps kept on an atlas object's edges (None: it keeps none), for a solve whose atlas
     has the object's patches from position `start` on. Whether they still fit is the engine's
-    to decide (kept_overlaps.usable)."""
+    to decide (overlap.kept.usable)."""
     mesh = obj.data
     key = mesh.get(names.PROP_OVERLAP_KEY)
     attr = mesh.attributes.get(names.OVERLAP_C)
@@ -215,7 +245,7 @@ def read_kept(obj, start: int) -> KeptOverlaps | None:
 
 def write_atlas(scene, source: str, atlas: Atlas, kept: KeptOverlaps | None = None) -> bpy.types.Object:
     """Create, or replace the mesh of, the one atlas object of `source`; returns it. kept: the C
-    of its patches, kept on the mesh (kept_overlaps.py).
+    of its patches, kept on the mesh (overlap/kept.py).
 
     Only objects carrying our source property are touched; a user object that merely has a
     similar name is left alone (the new object then gets Blender's .001-style name).
@@ -240,6 +270,7 @@ def write_atlas(scene, source: str, atlas: Atlas, kept: KeptOverlaps | None = No
     obj[names.PROP_SOURCE] = source
     obj[names.PROP_BETA] = atlas.beta
     obj[names.PROP_VERSION] = ATLAS_VERSION
+    keep_out_of_renders(obj)
     return obj
 
 
@@ -300,7 +331,8 @@ def write_environment(scene, atlas: Atlas, key: str, kept: KeptOverlaps | None =
     obj[names.PROP_ENVIRONMENT] = key
     obj[names.PROP_BETA] = atlas.beta
     obj[names.PROP_VERSION] = ATLAS_VERSION
-    obj.hide_viewport = obj.hide_render = True
+    obj.hide_viewport = True
+    keep_out_of_renders(obj)
     return obj
 
 

@@ -19,6 +19,8 @@ import numpy as np
 from bpy.props import EnumProperty, IntProperty, StringProperty
 
 from ..ovrad_addon import (
+    BakeRequest,
+    Gather,
     OvradError,
     bake_normals,
     bake_sides,
@@ -29,7 +31,7 @@ from ..ovrad_addon import (
     radiance_at,
 )
 from ..ovrad_addon import texels as bake
-from . import attributes, mesh_reader
+from . import attributes, polls, properties, scene_model
 from .solution import load_solution
 
 IMAGE_MARK = "ovrad_bake"  # custom property on images this operator made (only those are replaced)
@@ -55,10 +57,11 @@ def solved_atlases(scene) -> dict:
     }
 
 
-def uv_triangles(obj, depsgraph, uv_map: str) -> tuple[np.ndarray, np.ndarray]:
-    """UV (T, 3, 2) and world positions (T, 3, 3) of the evaluated mesh's loop triangles."""
-    data = mesh_reader.read_object(obj, depsgraph, uv_map=uv_map)
-    return data.uv, data.corners
+def uv_triangles(item: scene_model.MeshItem, uv_map: str) -> tuple[np.ndarray, np.ndarray]:
+    """UV (T, 3, 2) and world positions (T, 3, 3) of a scene model item's loop triangles (its
+    evaluated mesh); OvradError when it has no such UV map."""
+    data = item.data()
+    return data.bake_uvs(uv_map, item.name), data.corners
 
 
 def gather_step(count: int, rays: int, budget: int | None = None) -> int:
@@ -94,7 +97,9 @@ def sparse_gather(problem, radiosity, texels, width: int, light, step: int, size
     own = own_emission(problem, light.emitters, light.emission_scale)
 
     def gather(k):
-        return gather_unique(problem, radiosity, own, texels.points[k], normals[k], light.gather_rays, tri[k])
+        return gather_unique(
+            problem, Gather(radiosity, own, light.gather_rays), texels.points[k], normals[k], tri[k]
+        )
 
     x, y = texels.texel % width, texels.texel // width
     coarse = np.flatnonzero((x % step == 0) & (y % step == 0))
@@ -138,7 +143,7 @@ def bake_values(
     width: int | None = None,
     size=None,
 ) -> np.ndarray:
-    """Radiance (or irradiance / pi) (k, 3) at texel points, seen from the side pipeline.bake_sides
+    """Radiance (or irradiance / pi) (k, 3) at texel points, seen from the side bake.points.bake_sides
     picks for their triangle (as the vertex bake does); direct light computed at the texels when
     the solve's first shot and light are given, and the final gather on a grid of every
     gather_step()-th texel when it would cast more than GATHER_RAY_BUDGET rays (width: the image's,
@@ -155,7 +160,8 @@ def bake_values(
         sl = slice(s, s + _CHUNK)
         pts, tri = texels.points[sl], texels.triangle[sl]
         part = None if indirect is None else indirect[sl]
-        out[sl] = fn(problem, radiosity, pts, tri, bake_sides(problem, tri), first_shot, light, indirect=part)
+        request = BakeRequest(radiosity, first_shot, light, indirect=part)
+        out[sl] = fn(problem, request, pts, tri, bake_sides(problem, tri))
     # Smooth beta rings slightly below 0 next to contact shadows; light is never negative.
     return np.maximum(out, 0.0), step
 
@@ -235,9 +241,7 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
     bl_options = {"REGISTER", "UNDO"}
 
     uv_map: StringProperty(name="UV Map", description="UV map to bake through (empty: the active render one)")
-    size: IntProperty(
-        name="Size", description="Image width and height in texels", default=1024, min=1, max=16384
-    )
+    size: IntProperty(name="Size", description="Image width and height in texels", **properties.IMAGE_SIZE)
     margin: IntProperty(
         name="Margin",
         description="Texels filled around UV islands so no seams show",
@@ -245,18 +249,7 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
         min=0,
         max=256,
     )
-    quantity: EnumProperty(
-        name="Quantity",
-        items=(
-            (
-                "RADIANCE",
-                "Radiance",
-                "Outgoing radiance B/pi with the surface's own emission (a Cycles DIFFUSE bake)",
-            ),
-            ("IRRADIANCE", "Irradiance", "Light arriving without the surface's albedo, H/pi (lightmaps)"),
-        ),
-        default="RADIANCE",
-    )
+    quantity: EnumProperty(name="Quantity", items=properties.BAKE_QUANTITIES, default="RADIANCE")
     filepath: StringProperty(
         name="File",
         description="OpenEXR file per object; {object} is replaced by the object's name",
@@ -266,17 +259,15 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        if not any(o.type == "MESH" and not attributes.is_atlas(o) for o in context.selected_objects):
-            cls.poll_message_set("Select the meshes to bake")
-            return False
-        return True
+        return polls.passes(cls, [(bool(polls.selected_meshes(context)), "Select the meshes to bake")])
 
     def execute(self, context):
+        attributes.keep_atlases_out_of_renders()  # atlases of older files rendered: mend them
         start = time.perf_counter()
         created: list[str] = []
         warnings: list[str] = []
         try:
-            targets = [o for o in context.selected_objects if o.type == "MESH" and not attributes.is_atlas(o)]
+            targets = polls.selected_meshes(context)
             solved = solved_atlases(context.scene)
             unsolved = [o.name for o in targets if o.name not in solved]
             if unsolved:
@@ -284,11 +275,14 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
             targets = [o for o in targets if o.name in solved]
             if len(targets) > 1 and "{object}" not in self.filepath:
                 raise OvradError("several objects are selected: put {object} in the file path")
+            # the scene, read once for this bake: the targets' meshes here, the solution's inputs below
             depsgraph = context.evaluated_depsgraph_get()
+            model = scene_model.read_model(depsgraph, context.scene)
             jobs = []
             for obj in targets:  # every check before any computation or write
                 try:
-                    uv, world = uv_triangles(obj, depsgraph, self.uv_map)
+                    item = model.item_of(obj) or scene_model.object_item(obj, depsgraph)
+                    uv, world = uv_triangles(item, self.uv_map)
                 except OvradError as e:
                     warnings.append(f"'{obj.name}' not baked: {e}")
                     continue
@@ -297,7 +291,7 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
                 raise OvradError("; ".join(warnings) or "nothing to bake: select the meshes to bake")
             for *_, path in jobs:
                 prepare_folder(path, created)
-            solution = load_solution(context)
+            solution = load_solution(context, model)
             problem, radiosity, firsts = solution.problem, solution.radiosity, solution.first_triangle
             order = [o.name for o in solution.receivers]
             results, steps = [], []

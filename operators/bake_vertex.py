@@ -17,6 +17,7 @@ import numpy as np
 from bpy.props import EnumProperty, StringProperty
 
 from ..ovrad_addon import (
+    BakeRequest,
     OvradError,
     bake_normals,
     bake_sides,
@@ -26,7 +27,7 @@ from ..ovrad_addon import (
     split_corners,
     without_area,
 )
-from . import attributes, mesh_reader, solve
+from . import attributes, mesh_reader, polls, properties, solve
 from .solution import load_solution
 
 CHUNK = 1 << 18  # corners reconstructed at a time (bounds the sparse alpha matrices)
@@ -69,17 +70,18 @@ class ReceiverBake:
     vertex nearest to it (Cycles leaves it black), and a loop with no copy takes its vertex's value.
     """
 
-    def __init__(self, obj, depsgraph, first_triangle: int, n_triangles: int, origins=None):
+    def __init__(self, obj, depsgraph, first_triangle: int, n_triangles: int, origins=None, data=None):
         """origins: what mesh_reader.read_with_origins gave for obj if its modifiers change its
-        topology, else None (then read here if they do after all)."""
+        topology, else None (then read here if they do after all); data: obj's evaluated mesh in
+        world space as the scene model read it (mesh_reader.MeshData; None: read here)."""
         self.obj = obj
         orig = obj.data
         own = mesh_reader.loop_vertices(orig)
         self.n_vertices, self.n_loops = len(orig.vertices), len(orig.loops)
         if origins is None:
-            data = mesh_reader.read_object(obj, depsgraph)
-            counts = (len(data.vertices), data.n_polygons)
-            if counts != (self.n_vertices, len(orig.polygons)) or not np.array_equal(data.loop_vertices, own):
+            if data is None:
+                data = mesh_reader.read_object(obj, depsgraph)
+            if not mesh_reader.keeps_topology(data, orig):
                 origins = mesh_reader.read_with_origins([obj], depsgraph)[obj.name]
         if isinstance(origins, OvradError):
             raise origins
@@ -135,9 +137,9 @@ class ReceiverBake:
         self, solution, quantity: str, share: bool = False, corner_cache: dict | None = None
     ) -> np.ndarray:
         """(n, 3) value at each bake corner (self.corners), negative ringing clamped to 0. share:
-        the corners of a vertex whose faces turn little share one gather (gather.shared_normals;
+        the corners of a vertex whose faces turn little share one gather (bake.gather.shared_normals;
         for the POINT domain, which averages them). corner_cache: a dict kept over one bake's
-        receivers and chunks (gather.gather_indirect)."""
+        receivers and chunks (bake.gather.gather_indirect)."""
         problem = solution.problem
         c = self.corners
         self.no_area = without_area(problem, self.triangles)
@@ -161,7 +163,7 @@ class ReceiverBake:
         split = split_corners(problem.index, verts, at, pts, normals)
         at = np.where(split[:, None], pts, at)
         # A vertex's corners on one side (not split, with area) may share one gather for their faces'
-        # normals, weighted as domain_values weighs them (gather.shared_normals), chunk by chunk: the
+        # normals, weighted as domain_values weighs them (bake.gather.shared_normals), chunk by chunk: the
         # normals of every shared gather are held for the chunk's corners only.
         group = None
         if share:
@@ -172,18 +174,15 @@ class ReceiverBake:
         for s in range(0, len(pts), CHUNK):
             k = order[s : s + CHUNK]
             spread = None if group is None else shared_normals(group[k], normals[k], self.angles[k])
-            out[k] = fn(
-                problem,
+            request = BakeRequest(
                 solution.radiosity,
-                pts[k],
-                tris[k],
-                sides[k],
                 solution.first_shot,
                 solution.light,
                 gather_points=at[k],
                 gather_normals=spread,
                 corner_cache=corner_cache,
             )
+            out[k] = fn(problem, request, pts[k], tris[k], sides[k])
         # Smooth beta rings slightly below 0 next to contact shadows; light is never negative.
         return np.maximum(out, 0.0)
 
@@ -245,11 +244,13 @@ def bake_meshes(context, solution, name: str, domain: str, quantity: str) -> tup
     surfaces = solution.problem.surfaces
     users: dict = {}  # mesh -> [(object, values)]
     warnings = []
+    # each receiver's evaluated mesh, as the scene model read it for this bake
+    evaluated = [it.data() for it in solution.items]
     # receivers whose modifiers change their topology: their maps to their own meshes, read together
     changed = [
         o
-        for o in solution.receivers
-        if o.data.library is None and not mesh_reader.same_topology(o, depsgraph)
+        for o, data in zip(solution.receivers, evaluated, strict=True)
+        if o.data.library is None and not mesh_reader.keeps_topology(data, o.data)
     ]
     origins = mesh_reader.read_with_origins(changed, depsgraph) if changed else {}
     shared: dict = {}  # the gathers' corner cache, one for the whole bake
@@ -260,7 +261,8 @@ def bake_meshes(context, solution, name: str, domain: str, quantity: str) -> tup
                 raise OvradError(f"the mesh of '{obj.name}' is linked from a library: make it local first")
             attributes.check_target(mesh, name)
             n_tri = int(np.sum(surfaces.object_index == i))
-            bake = ReceiverBake(obj, depsgraph, solution.first_triangle[i], n_tri, origins.get(obj.name))
+            first = solution.first_triangle[i]
+            bake = ReceiverBake(obj, depsgraph, first, n_tri, origins.get(obj.name), evaluated[i])
             values = bake.domain_values(
                 bake.reconstruct(solution, quantity, domain == "POINT", shared), domain
             )
@@ -294,29 +296,13 @@ class OVRAD_OT_bake_vertex(bpy.types.Operator):
 
     # Unset properties take the scene's bake settings (the panel's).
     attribute: StringProperty(name="Attribute", description="Colour attribute to write", maxlen=63)
-    domain: EnumProperty(
-        name="Domain",
-        items=(("POINT", "Vertex", "One value per vertex"), ("CORNER", "Face Corner", "One per face corner")),
-        default="POINT",
-    )
-    quantity: EnumProperty(
-        name="Quantity",
-        items=(
-            ("RADIANCE", "Radiance", "Outgoing radiance B/pi, with emission"),
-            ("IRRADIANCE", "Irradiance", "Light arriving, without albedo (E/pi)"),
-        ),
-        default="RADIANCE",
-    )
+    domain: EnumProperty(name="Domain", items=properties.BAKE_DOMAINS, default="POINT")
+    quantity: EnumProperty(name="Quantity", items=properties.BAKE_QUANTITIES, default="RADIANCE")
 
     @classmethod
     def poll(cls, context):
-        if context.mode != "OBJECT":
-            cls.poll_message_set("Switch to Object Mode to bake")
-            return False
-        if solve.running() is not None:
-            cls.poll_message_set("A solve is running")
-            return False
-        return True
+        checks = (polls.object_mode(context, "bake"), (solve.running() is None, "A solve is running"))
+        return polls.passes(cls, checks)
 
     def _option(self, context, key: str, scene_key: str):
         if self.properties.is_property_set(key):
@@ -324,6 +310,7 @@ class OVRAD_OT_bake_vertex(bpy.types.Operator):
         return getattr(context.scene.ovrad, scene_key)
 
     def execute(self, context):
+        attributes.keep_atlases_out_of_renders()  # atlases of older files rendered: mend them
         start = time.perf_counter()
         name = self._option(context, "attribute", "bake_attribute").strip()
         domain = self._option(context, "domain", "bake_domain")

@@ -101,7 +101,7 @@ def plan(
         if names.OBJECT in stored.data.attributes:
             owner = attributes.read_point_attribute(stored.data, names.OBJECT).astype(np.int64)
         else:
-            owner = np.full(len(atlas), -1, np.int64)  # located by search (pipeline.attach_sheets)
+            owner = np.full(len(atlas), -1, np.int64)  # located by search (radiosity.problem.attach_sheets)
         kept = attributes.read_kept(stored, len(receivers))
         return Environment(replace(atlas, source_object=owner), key, name=stored.name, kept=kept)
     if not build:

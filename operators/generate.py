@@ -3,34 +3,14 @@
 from __future__ import annotations
 
 import time
-from contextlib import contextmanager
 
 import bpy
 import numpy as np
 from bpy.props import EnumProperty
 
 from ..ovrad_addon import OvradError, build_atlas_and_overlaps, keep, object_keys
-from . import attributes, display, properties, scene_io, scene_model
-
-
-@contextmanager
-def progress_bar(context):
-    """A progress callback for the engine: the window's progress cursor when there is a UI, else nothing."""
-    wm = context.window_manager
-    shown = context.window is not None and not bpy.app.background
-    if shown:
-        wm.progress_begin(0, 1000)
-
-    def update(fraction: float, message: str) -> bool:
-        if shown:
-            wm.progress_update(int(1000 * min(max(fraction, 0.0), 1.0)))
-        return True
-
-    try:
-        yield update
-    finally:
-        if shown:
-            wm.progress_end()
+from . import attributes, display, polls, properties, scene_io, scene_model
+from .window import progress_bar
 
 
 class OVRAD_OT_generate_atlas(bpy.types.Operator):
@@ -44,15 +24,14 @@ class OVRAD_OT_generate_atlas(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        if context.mode != "OBJECT":
-            cls.poll_message_set("Switch to Object Mode to generate an atlas")
-            return False
-        if not any(o.type == "MESH" and not attributes.is_atlas(o) for o in context.selected_objects):
-            cls.poll_message_set("Select at least one mesh object to generate an atlas")
-            return False
-        return True
+        meshes = (
+            bool(polls.selected_meshes(context)),
+            "Select at least one mesh object to generate an atlas",
+        )
+        return polls.passes(cls, (polls.object_mode(context, "generate an atlas"), meshes))
 
     def execute(self, context):
+        attributes.keep_atlases_out_of_renders()  # atlases of older files rendered: mend them
         start = time.perf_counter()
         scene = context.scene
         # In the order a solve reads the atlases' meshes (by atlas name): the same triangle order, so
@@ -113,6 +92,7 @@ class OVRAD_OT_set_display(bpy.types.Operator):
     )
 
     def execute(self, context):
+        attributes.keep_atlases_out_of_renders()  # atlases of older files rendered: mend them
         changed = sum(
             display.set_quantity(obj, self.quantity)
             for obj in context.scene.objects

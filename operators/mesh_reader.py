@@ -52,6 +52,11 @@ class MeshData:
             return None
         return self.loop_uvs[uv_map or self.active_uv][self.loops].astype(np.float64)
 
+    def bake_uvs(self, uv_map: str, owner: str) -> np.ndarray:
+        """(T, 3, 2) float64 UVs of the map a bake goes through (see uv_map_name; needs the maps
+        read, read_mesh(all_uvs=True)); owner names the object in the error."""
+        return self.triangle_uvs(uv_map_name(list(self.loop_uvs or ()), self.active_uv, uv_map, owner))
+
 
 def _get(collection, key: str, per: int, dtype) -> np.ndarray:
     out = np.empty(len(collection) * per, dtype)
@@ -64,18 +69,26 @@ def loop_vertices(mesh) -> np.ndarray:
     return _get(mesh.loops, "vertex_index", 1, np.int32).astype(np.int64)
 
 
-def _uv_layer(mesh, uv_map: str, owner: str):
-    """The UV layer named uv_map, or the active render one when uv_map is empty."""
-    layers = mesh.uv_layers
-    if len(layers) == 0:
+def uv_map_name(have: list[str], active: str, uv_map: str, owner: str) -> str:
+    """The UV map named uv_map, or the active render one (`active`) when uv_map is empty, of a mesh
+    whose maps are `have`; OvradError naming `owner` when it has no map, or none of that name."""
+    if not have:
         raise OvradError(f"'{owner}' has no UV map: unwrap it (UV > Unwrap) before baking to an image")
-    if not uv_map:
-        return next((lay for lay in layers if lay.active_render), layers.active or layers[0])
-    layer = layers.get(uv_map)
-    if layer is None:
-        have = ", ".join(lay.name for lay in layers)
-        raise OvradError(f"'{owner}' has no UV map named '{uv_map}' (it has: {have})")
-    return layer
+    if uv_map and uv_map not in have:
+        raise OvradError(f"'{owner}' has no UV map named '{uv_map}' (it has: {', '.join(have)})")
+    return uv_map or active
+
+
+def _active_uv(layers):
+    """The active render UV layer (else the active one, else the first) of a mesh that has some."""
+    return next((lay for lay in layers if lay.active_render), layers.active or layers[0])
+
+
+def _uv_layer(mesh, uv_map: str, owner: str):
+    """The UV layer named uv_map, or the active render one when uv_map is empty (uv_map_name)."""
+    layers = mesh.uv_layers
+    have = [lay.name for lay in layers]
+    return layers[uv_map_name(have, _active_uv(layers).name if have else "", uv_map, owner)]
 
 
 def read_mesh(
@@ -108,11 +121,10 @@ def read_mesh(
         materials=tuple(mesh.materials) if materials is None else tuple(materials),
     )
     if all_uvs and len(mesh.uv_layers):
-        active = next((lay for lay in mesh.uv_layers if lay.active_render), mesh.uv_layers.active)
         local = replace(
             local,
             loop_uvs={lay.name: _get(lay.data, "uv", 2, np.float32) for lay in mesh.uv_layers},
-            active_uv=(active or mesh.uv_layers[0]).name,
+            active_uv=_active_uv(mesh.uv_layers).name,
         )
     return placed(local, matrix_world)
 
@@ -184,13 +196,12 @@ def _copies(mesh, index_name: str, tag_name: str, tags: np.ndarray) -> np.ndarra
     return np.where(ok, got, -1)
 
 
-def same_topology(obj, depsgraph) -> bool:
-    """Whether a mesh object's modifiers keep its mesh's vertices, faces and loops as they are."""
-    mesh, ev = obj.data, obj.evaluated_get(depsgraph).data
-    counts = (len(mesh.vertices), len(mesh.polygons), len(mesh.loops))
-    if (len(ev.vertices), len(ev.polygons), len(ev.loops)) != counts:
+def keeps_topology(data: MeshData, mesh) -> bool:
+    """Whether an object's evaluated mesh (data) has its own mesh's vertices, faces and loops as
+    they are (its modifiers keep the topology)."""
+    if (len(data.vertices), data.n_polygons) != (len(mesh.vertices), len(mesh.polygons)):
         return False
-    return bool(np.array_equal(loop_vertices(ev), loop_vertices(mesh)))
+    return bool(np.array_equal(data.loop_vertices, loop_vertices(mesh)))
 
 
 def read_with_origins(objects, depsgraph) -> dict:

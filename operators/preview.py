@@ -198,6 +198,7 @@ class OVRAD_OT_preview(bpy.types.Operator):
     )
 
     def execute(self, context):
+        attributes.keep_atlases_out_of_renders()  # atlases of older files rendered: mend them
         if is_active():
             for p in teardown():
                 self.report({"WARNING"}, p)

@@ -19,13 +19,34 @@ _SOLVE = SolveSettings()
 # on the Cornell box, every vertex scored: with the final gather and its near field the error
 # follows the gather rays (2 000 smooth patches, 1 M transport rays: 2.2 / 1.7 / 1.45 / 1.35 % with
 # 128 / 256 / 512 / 1 024 rays), the patch count barely (3 000: 1.7 % at 256 rays) and the transport
-# rays not at all above 2^19-2^20. Measured against Cycles by benchmarks/speed_vs_error.py (README).
+# rays not at all above 2^19-2^20. Measured against Cycles by benchmarks/speed_vs_error.py
+# (docs/benchmarks.md).
 QUALITY = {
     "DRAFT": dict(patch_count=1000, gather_rays=128, min_rays=1 << 19),
     "MEDIUM": dict(patch_count=_ATLAS.patch_count, gather_rays=_SOLVE.gather_rays, min_rays=_SOLVE.min_rays),
     "HIGH": dict(patch_count=3000, gather_rays=1024, min_rays=1 << 21),
 }
 _LEVELS = (*QUALITY, "CUSTOM")
+
+# The choices of a bake (the scene's settings and the bake operators' own properties).
+IMAGE_SIZE = dict(default=1024, min=1, max=16384)  # texels, width and height
+BAKE_DOMAINS = (
+    ("POINT", "Vertex", "One value per vertex: angle-weighted average of its face corners (smooth)"),
+    ("CORNER", "Face Corner", "One value per face corner: keeps hard edges between faces"),
+)
+BAKE_QUANTITIES = (
+    (
+        "RADIANCE",
+        "Radiance",
+        "Outgoing diffuse radiance L = B/pi with the surface's own emission (a Cycles DIFFUSE bake "
+        "with colour, plus emission)",
+    ),
+    (
+        "IRRADIANCE",
+        "Irradiance",
+        "Light arriving, without the surface's albedo, as the radiance of a white surface (E/pi)",
+    ),
+)
 
 
 def apply_quality(props, level: str) -> None:
@@ -250,10 +271,8 @@ class OVRAD_PG_settings(bpy.types.PropertyGroup):
     bake_image_size: IntProperty(
         name="Image Size",
         description="Width and height of a baked image, in texels",
-        default=1024,
-        min=1,
-        max=16384,
         soft_max=8192,
+        **IMAGE_SIZE,
     )
     bake_image_path: StringProperty(
         name="File",
@@ -264,28 +283,13 @@ class OVRAD_PG_settings(bpy.types.PropertyGroup):
     bake_domain: EnumProperty(
         name="Domain",
         description="Where the colour attribute stores its values",
-        items=(
-            ("POINT", "Vertex", "One value per vertex: angle-weighted average of its face corners (smooth)"),
-            ("CORNER", "Face Corner", "One value per face corner: keeps hard edges between faces"),
-        ),
+        items=BAKE_DOMAINS,
         default="POINT",
     )
     bake_quantity: EnumProperty(
         name="Quantity",
         description="What is baked",
-        items=(
-            (
-                "RADIANCE",
-                "Radiance",
-                "Outgoing diffuse radiance L = B/pi with the surface's own emission (a Cycles DIFFUSE bake "
-                "with colour, plus emission)",
-            ),
-            (
-                "IRRADIANCE",
-                "Irradiance",
-                "Light arriving, without the surface's albedo, as the radiance of a white surface (E/pi)",
-            ),
-        ),
+        items=BAKE_QUANTITIES,
         default="RADIANCE",
     )
 

@@ -26,8 +26,8 @@ from ..ovrad_addon import (
     overlaps,
     refine,
 )
-from . import attributes, display, properties, solve_inputs
-from .generate import progress_bar
+from . import attributes, display, polls, properties, solve_inputs
+from .window import progress_bar
 
 BASE_RADIUS = "ovrad_base_radius"  # object property: the median radius the atlas was generated with
 
@@ -91,15 +91,15 @@ class OVRAD_OT_refine_atlas(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        if context.mode != "OBJECT":
-            cls.poll_message_set("Switch to Object Mode to refine the atlas")
-            return False
-        if not any(attributes.is_atlas(o) for o in context.scene.objects):
-            cls.poll_message_set("Generate an atlas and solve it first")
-            return False
-        return True
+        has_atlas = any(attributes.is_atlas(o) for o in context.scene.objects)
+        checks = (
+            polls.object_mode(context, "refine the atlas"),
+            (has_atlas, "Generate an atlas and solve it first"),
+        )
+        return polls.passes(cls, checks)
 
     def execute(self, context):
+        attributes.keep_atlases_out_of_renders()  # atlases of older files rendered: mend them
         start = time.perf_counter()
         try:
             replaced, before, after = refine_scene(context)

@@ -1,5 +1,5 @@
-"""Reading the Blender scene into engine arrays: evaluated meshes in world space, material colours
-and lamps (the world: world.py)."""
+"""The scene's meshes as engine arrays: the scene model's items (scene_model.py: meshes, lamps,
+world) in world space with their material colours and albedo textures, as one Surfaces."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..ovrad_addon import Lamp, OvradError, Surfaces, TextureAlbedo, lamp_area, names
-from . import compat, materials
+from ..ovrad_addon import OvradError, Surfaces, TextureAlbedo, names
+from . import materials, scene_model
 
 
 @dataclass
@@ -146,8 +146,6 @@ def _albedo(parts: list[_Mesh]) -> TextureAlbedo | None:
 def default_occluders(context, receivers, model=None) -> list:
     """Every other mesh and instance that renders (scene_model.MeshItem): it gets no patches of
     the receivers' own, but hides, bounds space and (in a solve) reflects light."""
-    from . import scene_model
-
     if model is None:
         model = scene_model.read_model(context.evaluated_depsgraph_get(), context.scene)
     return model.others(receivers)
@@ -160,8 +158,6 @@ def read_scene(depsgraph, receivers, occluders=(), model=None) -> SceneMeshes:
     Non-mesh objects, atlas objects and meshes without faces are skipped with a warning; raises
     OvradError when no receiver is left.
     """
-    from . import scene_model
-
     warnings: list[str] = []
     kept = []
     for obj in receivers:
@@ -197,8 +193,16 @@ def read_scene(depsgraph, receivers, occluders=(), model=None) -> SceneMeshes:
                 continue
             if id(it.local) not in colors:  # a shared mesh's materials are read once
                 colors[id(it.local)] = _read_mesh(it.local, warnings, cache)
+            part = _part(it.data(), colors[id(it.local)])
+            if not np.all(np.isfinite(part.vertices)):
+                # one broken object never stops the others: it neither gets light nor blocks it
+                warnings.append(
+                    f"'{it.name}' has NaN or infinite vertex coordinates; skipped as "
+                    f"{'a receiver' if role == 'receiver' else 'an occluder'} (fix the mesh or leave it out)"
+                )
+                continue
             items.append(it)
-            parts.append(_part(it.data(), colors[id(it.local)]))
+            parts.append(part)
             n_receivers += role == "receiver"
     if n_receivers == 0:
         raise OvradError("the selected meshes have no faces: select at least one mesh with faces")
@@ -216,119 +220,3 @@ def read_scene(depsgraph, receivers, occluders=(), model=None) -> SceneMeshes:
     # The same material on many objects would repeat its warning.
     objects = [it.obj for it in items]
     return SceneMeshes(surfaces, objects, n_receivers, list(dict.fromkeys(warnings)), items)
-
-
-def _light_power(light, world_area: float, radius_area: float) -> float:
-    """Blender's power (or sun strength) as Cycles applies it: exposure, and the size factor of
-    lamps whose 'Normalize' is off (their power then grows with their area)."""
-    power = float(light.energy) * 2.0 ** compat.light_exposure(light)
-    if not compat.light_normalized(light):
-        power *= world_area if light.type == "AREA" else radius_area
-    return power
-
-
-def _light_color(light) -> tuple:
-    color = np.array(light.color[:3], float)
-    if (blackbody := compat.light_temperature_color(light)) is not None:
-        color = color * np.array(blackbody, float)
-    return tuple(color)
-
-
-def read_lamps(depsgraph, warnings: list[str] | None = None) -> tuple[Lamp, ...]:
-    """Lamps (engine Lamp, world space, Cycles units) of every light that renders: the view layer's
-    light objects and the lights inside collection instances (each at its instance's matrix).
-
-    Power is W (point, spot, area) or W/m^2 (sun) times 2^exposure; colour times the blackbody
-    colour when Temperature is used; area sizes are scaled by the object's scale. A point or spot
-    radius (a sphere) and a sun's angle (a disk) give soft shadows. What the engine does not model
-    (an area lamp's spread, light node trees, non-uniform spot scale) is approximated and named in
-    `warnings`.
-    """
-    warnings = [] if warnings is None else warnings
-    lamps = []
-    for obj in depsgraph.view_layer.objects:
-        # As for meshes: what renders counts (a lamp hidden only in the viewport still lights the render).
-        if obj.type != "LIGHT" or obj.hide_render:
-            continue
-        ev = obj.evaluated_get(depsgraph)
-        lamps += _lamp(obj.name, ev.data, np.array(ev.matrix_world, dtype=np.float64), warnings)
-    for inst in depsgraph.object_instances:
-        if not inst.is_instance or inst.object.type != "LIGHT":
-            continue
-        orig = inst.object.original
-        parent = inst.parent.original if inst.parent is not None else None
-        if orig.hide_render or (parent is not None and not _renders(parent)):
-            continue
-        name = f"{parent.name if parent else '?'} > {orig.name}"
-        lamps += _lamp(name, inst.object.data, np.array(inst.matrix_world, dtype=np.float64), warnings)
-    return tuple(lamps)
-
-
-def _renders(obj) -> bool:
-    """scene_model.renders (imported late: scene_model imports this module)."""
-    from .scene_model import renders
-
-    return renders(obj)
-
-
-def _lamp(name: str, light, m: np.ndarray, warnings: list[str]) -> list[Lamp]:
-    """One light at world matrix m as engine lamps (none, with a warning, if it cannot be used)."""
-    axes = m[:3, :3]
-    scale = np.linalg.norm(axes, axis=0)
-    if np.any(scale <= 0):
-        warnings.append(f"lamp '{name}' has zero scale; skipped")
-        return []
-    position = tuple(m[:3, 3])
-    direction = tuple(-axes[:, 2] / scale[2])
-    tangent = tuple(axes[:, 0] / scale[0])
-    kind = light.type
-    radius = float(getattr(light, "shadow_soft_size", 0.0))
-    if compat.light_uses_nodes(light):
-        warnings.append(f"lamp '{name}': its node tree is ignored (only power and colour are read)")
-    common = dict(position=position, direction=direction, tangent=tangent, color=_light_color(light))
-    if kind in ("POINT", "SPOT"):
-        power = _light_power(light, 0.0, np.pi * radius * radius if radius > 0 else 1.0)
-        if kind == "POINT":
-            return [Lamp("POINT", power=power, radius=radius, **common)]
-        if not np.isclose(scale[0], scale[1], rtol=1e-4):
-            warnings.append(f"spot '{name}' has a non-uniform scale: its cone is taken as round")
-        return [
-            Lamp(
-                "SPOT",
-                power=power,
-                spot_size=float(light.spot_size),
-                spot_blend=float(light.spot_blend),
-                radius=radius,
-                **common,
-            )
-        ]
-    if kind == "SUN":
-        angle = float(getattr(light, "angle", 0.0))
-        disk = np.pi * np.tan(0.5 * angle) ** 2 if angle > 0 else 1.0
-        return [Lamp("SUN", power=_light_power(light, 0.0, disk), angle=angle, **common)]
-    if kind == "AREA":
-        shape = light.shape
-        size_x = float(light.size) * scale[0]
-        size_y = float(light.size_y if shape in ("RECTANGLE", "ELLIPSE") else light.size) * scale[1]
-        # Scaled objects turn squares and disks into rectangles and ellipses.
-        if shape in ("SQUARE", "DISK") and not np.isclose(size_x, size_y, rtol=1e-6):
-            shape = "RECTANGLE" if shape == "SQUARE" else "ELLIPSE"
-        spread = float(getattr(light, "spread", np.pi))
-        if spread < np.pi - 1e-4:
-            warnings.append(
-                f"area lamp '{name}' has spread {np.degrees(spread):.0f} degrees: taken as 180 "
-                "(a plain diffuse emitter)"
-            )
-        area = lamp_area(shape, size_x, size_y)
-        return [
-            Lamp(
-                "AREA",
-                power=_light_power(light, area, 1.0),
-                shape=shape,
-                size_x=size_x,
-                size_y=size_y,
-                **common,
-            )
-        ]
-    warnings.append(f"lamp '{name}' of type {kind.lower()} is not supported; skipped")
-    return []

@@ -1,6 +1,6 @@
 """What a scene holds, read once per operation: every mesh that renders (scene objects, collection
 and geometry-nodes instances, each with its own world matrix, a shared mesh read once), the lamps
-and the world."""
+(read here, in Cycles' units) and the world (world.py)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..ovrad_addon import names
-from . import mesh_reader, scene_io, world
+from ..ovrad_addon import Lamp, lamp_area, names
+from . import compat, mesh_reader, world
 
 _IDENTITY = np.eye(4)
 
@@ -128,6 +128,115 @@ def rendered_meshes(depsgraph) -> list[MeshItem]:
 def read_model(depsgraph, scene) -> SceneModel:
     """The scene's model (meshes and instances, lamps, world), read once."""
     warnings: list[str] = []
-    lamps = scene_io.read_lamps(depsgraph, warnings)
+    lamps = read_lamps(depsgraph, warnings)
     sky = world.read_world(scene, warnings)
     return SceneModel(rendered_meshes(depsgraph), lamps, sky, warnings)
+
+
+def _light_power(light, world_area: float, radius_area: float) -> float:
+    """Blender's power (or sun strength) as Cycles applies it: exposure, and the size factor of
+    lamps whose 'Normalize' is off (their power then grows with their area)."""
+    power = float(light.energy) * 2.0 ** compat.light_exposure(light)
+    if not compat.light_normalized(light):
+        power *= world_area if light.type == "AREA" else radius_area
+    return power
+
+
+def _light_color(light) -> tuple:
+    color = np.array(light.color[:3], float)
+    if (blackbody := compat.light_temperature_color(light)) is not None:
+        color = color * np.array(blackbody, float)
+    return tuple(color)
+
+
+def read_lamps(depsgraph, warnings: list[str] | None = None) -> tuple[Lamp, ...]:
+    """Lamps (engine Lamp, world space, Cycles units) of every light that renders: the view layer's
+    light objects and the lights inside collection instances (each at its instance's matrix).
+
+    Power is W (point, spot, area) or W/m^2 (sun) times 2^exposure; colour times the blackbody
+    colour when Temperature is used; area sizes are scaled by the object's scale. A point or spot
+    radius (a sphere) and a sun's angle (a disk) give soft shadows. What the engine does not model
+    (an area lamp's spread, light node trees, non-uniform spot scale) is approximated and named in
+    `warnings`.
+    """
+    warnings = [] if warnings is None else warnings
+    lamps = []
+    for obj in depsgraph.view_layer.objects:
+        # As for meshes: what renders counts (a lamp hidden only in the viewport still lights the render).
+        if obj.type != "LIGHT" or obj.hide_render:
+            continue
+        ev = obj.evaluated_get(depsgraph)
+        lamps += _lamp(obj.name, ev.data, np.array(ev.matrix_world, dtype=np.float64), warnings)
+    for inst in depsgraph.object_instances:
+        if not inst.is_instance or inst.object.type != "LIGHT":
+            continue
+        orig = inst.object.original
+        parent = inst.parent.original if inst.parent is not None else None
+        if orig.hide_render or (parent is not None and not renders(parent)):
+            continue
+        name = f"{parent.name if parent else '?'} > {orig.name}"
+        lamps += _lamp(name, inst.object.data, np.array(inst.matrix_world, dtype=np.float64), warnings)
+    return tuple(lamps)
+
+
+def _lamp(name: str, light, m: np.ndarray, warnings: list[str]) -> list[Lamp]:
+    """One light at world matrix m as engine lamps (none, with a warning, if it cannot be used)."""
+    axes = m[:3, :3]
+    scale = np.linalg.norm(axes, axis=0)
+    if np.any(scale <= 0):
+        warnings.append(f"lamp '{name}' has zero scale; skipped")
+        return []
+    position = tuple(m[:3, 3])
+    direction = tuple(-axes[:, 2] / scale[2])
+    tangent = tuple(axes[:, 0] / scale[0])
+    kind = light.type
+    radius = float(getattr(light, "shadow_soft_size", 0.0))
+    if compat.light_uses_nodes(light):
+        warnings.append(f"lamp '{name}': its node tree is ignored (only power and colour are read)")
+    common = dict(position=position, direction=direction, tangent=tangent, color=_light_color(light))
+    if kind in ("POINT", "SPOT"):
+        power = _light_power(light, 0.0, np.pi * radius * radius if radius > 0 else 1.0)
+        if kind == "POINT":
+            return [Lamp("POINT", power=power, radius=radius, **common)]
+        if not np.isclose(scale[0], scale[1], rtol=1e-4):
+            warnings.append(f"spot '{name}' has a non-uniform scale: its cone is taken as round")
+        return [
+            Lamp(
+                "SPOT",
+                power=power,
+                spot_size=float(light.spot_size),
+                spot_blend=float(light.spot_blend),
+                radius=radius,
+                **common,
+            )
+        ]
+    if kind == "SUN":
+        angle = float(getattr(light, "angle", 0.0))
+        disk = np.pi * np.tan(0.5 * angle) ** 2 if angle > 0 else 1.0
+        return [Lamp("SUN", power=_light_power(light, 0.0, disk), angle=angle, **common)]
+    if kind == "AREA":
+        shape = light.shape
+        size_x = float(light.size) * scale[0]
+        size_y = float(light.size_y if shape in ("RECTANGLE", "ELLIPSE") else light.size) * scale[1]
+        # Scaled objects turn squares and disks into rectangles and ellipses.
+        if shape in ("SQUARE", "DISK") and not np.isclose(size_x, size_y, rtol=1e-6):
+            shape = "RECTANGLE" if shape == "SQUARE" else "ELLIPSE"
+        spread = float(getattr(light, "spread", np.pi))
+        if spread < np.pi - 1e-4:
+            warnings.append(
+                f"area lamp '{name}' has spread {np.degrees(spread):.0f} degrees: taken as 180 "
+                "(a plain diffuse emitter)"
+            )
+        area = lamp_area(shape, size_x, size_y)
+        return [
+            Lamp(
+                "AREA",
+                power=_light_power(light, area, 1.0),
+                shape=shape,
+                size_x=size_x,
+                size_y=size_y,
+                **common,
+            )
+        ]
+    warnings.append(f"lamp '{name}' of type {kind.lower()} is not supported; skipped")
+    return []

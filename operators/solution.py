@@ -3,7 +3,7 @@ for reconstruction (Solution, load_solution), which is what the bakes import."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import bpy
 import numpy as np
@@ -52,7 +52,8 @@ class Solution:
     (n, 3) B per patch, read back from the atlas objects; receivers: the source mesh objects,
     receiver i's triangles start at first_triangle[i] in problem.surfaces.triangles, in the
     order of its evaluated mesh's loop_triangles. first_shot (n, 3) and light: the solve's direct
-    light, which bakes compute at their own points (None: everything from the patches).
+    light, which bakes compute at their own points (None: everything from the patches). items:
+    receiver i's scene_model.MeshItem (its evaluated mesh, as the scene model read it).
     """
 
     problem: Problem
@@ -61,11 +62,13 @@ class Solution:
     first_triangle: list[int]
     first_shot: np.ndarray | None = None
     light: DirectLight | None = None
+    items: list = field(default_factory=list)
 
 
-def load_solution(context) -> Solution:
-    """The stored solve of the scene's atlases; raises OvradError if there is none (press Solve)."""
-    inputs = read_inputs(context, need_light=False)
+def load_solution(context, model=None) -> Solution:
+    """The stored solve of the scene's atlases; raises OvradError if there is none (press Solve).
+    model: the scene_model.SceneModel the caller read for this operation (None: read it here)."""
+    inputs = read_inputs(context, need_light=False, model=model)
     parts = []
     for name, count in zip(inputs.atlas_names, inputs.counts, strict=True):
         mesh = bpy.data.objects[name].data
@@ -78,7 +81,7 @@ def load_solution(context) -> Solution:
     first_shot, light = None, None
     if context.scene.ovrad.bake_direct:
         first_shot, light = _stored_direct(inputs, problem)
-    return Solution(problem, radiosity, inputs.sources, firsts, first_shot, light)
+    return Solution(problem, radiosity, inputs.sources, firsts, first_shot, light, inputs.items)
 
 
 def _stored_direct(inputs: SolveInputs, problem: Problem) -> tuple[np.ndarray | None, DirectLight | None]:

@@ -17,9 +17,10 @@ from collections.abc import Callable
 import bpy
 
 from ..ovrad_addon import OvradError
-from . import solution, solve_job, solve_result
+from . import attributes, polls, solution, solve_job, solve_result
 from .solve_inputs import SolveInputs, read_inputs
 from .solve_job import SolveJob
+from .window import tag_redraw
 
 TIMER_STEP = 0.1  # seconds between modal() ticks
 
@@ -46,14 +47,6 @@ def make_job(inputs: SolveInputs, live: bool, listener=None) -> SolveJob:
     return SolveJob(inputs, live, problem=problem, listener=listener)
 
 
-def _tag_redraw(context) -> None:
-    wm = context.window_manager
-    for window in wm.windows:
-        for area in window.screen.areas:
-            if area.type == "VIEW_3D":
-                area.tag_redraw()
-
-
 class OVRAD_OT_solve(bpy.types.Operator):
     bl_idname = "ovrad.solve"
     bl_label = "Solve"
@@ -66,12 +59,10 @@ class OVRAD_OT_solve(bpy.types.Operator):
     @classmethod
     def poll(cls, context):
         # No atlas is not a poll failure: execute() says what to do about it.
-        if _RUNNING is not None:
-            cls.poll_message_set("A solve is already running")
-            return False
-        return True
+        return polls.passes(cls, [(_RUNNING is None, "A solve is already running")])
 
     def _read(self, context) -> SolveInputs | None:
+        attributes.keep_atlases_out_of_renders()  # atlases of older files rendered: mend them
         try:
             inputs = read_inputs(context)
         except OvradError as e:
@@ -139,7 +130,7 @@ class OVRAD_OT_solve(bpy.types.Operator):
         if context.workspace is not None:
             context.workspace.status_text_set(None)
         _RUNNING = None
-        _tag_redraw(context)
+        tag_redraw(context)
 
     def modal(self, context, event):
         job = self._job
@@ -159,7 +150,7 @@ class OVRAD_OT_solve(bpy.types.Operator):
             context.window_manager.progress_update(int(100 * p.fraction))
             if context.workspace is not None:
                 context.workspace.status_text_set(f"ovrad: {p.text()} (Esc to cancel)")
-            _tag_redraw(context)
+            tag_redraw(context)
             return {"PASS_THROUGH"}
         self._thread.join()
         self._cleanup(context)
@@ -183,10 +174,7 @@ class OVRAD_OT_cancel_solve(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        if _RUNNING is None or _RUNNING.cancelled:
-            cls.poll_message_set("No solve is running")
-            return False
-        return True
+        return polls.passes(cls, [(_RUNNING is not None and not _RUNNING.cancelled, "No solve is running")])
 
     def execute(self, context):
         _RUNNING.cancel()

@@ -32,6 +32,7 @@ class SolveInputs:
     objects, in the same order; the rest of surfaces (everything else that renders) is covered
     by the environment atlas, last in atlas_names when there is one. sky: the world's light
     (None: none). kept: the blocks of C the atlas objects keep (the engine uses those that fit).
+    items: the scene model's item (scene_model.MeshItem: its evaluated mesh) of each source.
     """
 
     surfaces: Surfaces
@@ -46,6 +47,7 @@ class SolveInputs:
     environment: environment.Environment | None = None
     sky: Sky | None = None
     kept: list[KeptOverlaps] = field(default_factory=list)
+    items: list = field(default_factory=list)
 
     def first_triangle(self, i: int) -> int:
         """Index in surfaces.triangles of receiver i's first triangle."""
@@ -102,13 +104,7 @@ def fingerprint(surfaces: Surfaces, atlas: Atlas) -> str:
         surfaces.object_index,
         surfaces.reflectance,
         surfaces.receiver,
-        atlas.centers,
-        atlas.normals,
-        atlas.tangents,
-        atlas.radii,
-        atlas.shapes,
-        atlas.thickness,
-        atlas.min_cos,
+        *atlas.placement,
         atlas.source_object,
     )
     for a in arrays:
@@ -149,9 +145,12 @@ def _light_warnings(surfaces: Surfaces, lamps, sky: Sky | None, receiver: np.nda
     return out
 
 
-def read_inputs(context, settings: SolveSettings | None = None, need_light: bool = True) -> SolveInputs:
+def read_inputs(
+    context, settings: SolveSettings | None = None, need_light: bool = True, model=None
+) -> SolveInputs:
     """Read the scene once: atlases and their source meshes (receivers), everything else that
-    renders (meshes, instances: the environment atlas covers them), lamps and world.
+    renders (meshes, instances: the environment atlas covers them), lamps and world; from `model`
+    (scene_model.SceneModel) when the caller has read it already.
 
     need_light: a solve (it checks there is light, and builds a new environment atlas when the
     stored one is stale); else a bake (a stale environment is an error). Raises OvradError for
@@ -162,7 +161,8 @@ def read_inputs(context, settings: SolveSettings | None = None, need_light: bool
     pairs = scene_atlases(scene, warnings)
     sources = [src for _, src in pairs]
     depsgraph = context.evaluated_depsgraph_get()
-    model = scene_model.read_model(depsgraph, scene)
+    if model is None:
+        model = scene_model.read_model(depsgraph, scene)
     meshes = scene_io.read_scene(depsgraph, sources, model.others(sources), model)
     kept = meshes.objects[: meshes.n_receivers]
     if kept != sources:
@@ -208,4 +208,5 @@ def read_inputs(context, settings: SolveSettings | None = None, need_light: bool
         environment=env,
         sky=sky,
         kept=kept,
+        items=meshes.items[: len(sources)],
     )

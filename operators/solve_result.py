@@ -84,7 +84,7 @@ def write_radiosity(
     """Radiance B/pi (FLOAT_COLOR, alpha 1) on each atlas object, shown by the display, and the
     first shot's share of it (direct light, for bakes) with the key of the light it came from
     (first_shot None: an intermediate write, which removes both), where the bakes cast sky rays
-    (sky (n,) bool, pipeline.bake_sky; None: everywhere) and how many transport rays escaped;
+    (sky (n,) bool, radiosity.emission.bake_sky; None: everywhere) and how many transport rays escaped;
     returns the names of atlas objects that changed under the solve (skipped)."""
     skipped = []
     radiance = np.asarray(radiosity, np.float64) / np.pi

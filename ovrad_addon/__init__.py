@@ -11,8 +11,8 @@ from . import memory, names
 from .atlas.index import SurfaceIndex, index_surfaces, sheet_spacing
 from .atlas.patches import Atlas
 from .bake import texels
-from .bake.gather import gather_unique, shared_normals
-from .bake.points import bake_normals, bake_sides, irradiance_at, radiance_at, without_area
+from .bake.gather import Gather, gather_unique, shared_normals
+from .bake.points import BakeRequest, bake_normals, bake_sides, irradiance_at, radiance_at, without_area
 from .digest import add_array, hasher
 from .errors import OvradError
 from .generate.build import build_atlas, build_atlas_and_overlaps, integrate, place_all
@@ -22,6 +22,7 @@ from .light.direct import DirectLight
 from .light.lamps import Lamp, lamp_area
 from .light.sky import Sky, sky_irradiance
 from .memory import StagePeaks
+from .overlap.contacts import contacts as find_contacts
 from .overlap.contacts import split_corners
 from .overlap.kept import KeptOverlaps, keep, object_keys
 from .overlap.queries import alpha_at, reconstruct
@@ -41,7 +42,9 @@ __all__ = [
     "REFINE_MIN_SCALE",
     "Atlas",
     "AtlasSettings",
+    "BakeRequest",
     "DirectLight",
+    "Gather",
     "KeptOverlaps",
     "Lamp",
     "ObjectSettings",
@@ -66,6 +69,7 @@ __all__ = [
     "build_atlas_and_overlaps",
     "cosine_directions",
     "direct_light",
+    "find_contacts",
     "gather_unique",
     "has_embree",
     "hasher",

@@ -12,19 +12,21 @@ THICKNESS = "ovrad_thickness"  # FLOAT, tolerated distance from the patch plane
 MIN_COS = "ovrad_min_cos"  # FLOAT, least cosine between patch and surface normals
 SUPPORT_AREA = "ovrad_support_area"  # FLOAT, area A_h of the patch's support on the surface
 TRIANGLE = "ovrad_triangle"  # INT, a triangle of the patch's sheet, counted in its source object's triangles
-ANCHOR = "ovrad_anchor"  # FLOAT_VECTOR, the point on the sheet the patch sees its support from (contact.py)
+# FLOAT_VECTOR, the point on the sheet the patch sees its support from (overlap/contacts.py)
+ANCHOR = "ovrad_anchor"
 SIDE = "ovrad_side"  # INT, side of that triangle the patch lies on: +1 front, -1 back
 OBJECT = "ovrad_object"  # INT, environment atlas only: the surfaces object each patch lies on
 RANDOM = "ovrad_random"  # FLOAT in [0, 1), a stable random value per patch (display)
 RADIOSITY = "ovrad_radiosity"  # FLOAT_COLOR, solved radiance B/pi
 DIRECT = "ovrad_direct"  # FLOAT_COLOR, the first shot's share of it (direct light of lamps and emitters)
-SKY = "ovrad_sky"  # INT, 1 where bake points and near gather hits cast sky rays (pipeline.bake_sky), by Solve
-# INT, with the kept C only: the contact flags C was integrated with (contact.contact_flags: 1 cut,
+# INT, 1 where bake points and near gather hits cast sky rays (radiosity.emission.bake_sky), by Solve
+SKY = "ovrad_sky"
+# INT, with the kept C only: the contact flags C was integrated with (overlap.contacts.contact_flags: 1 cut,
 # 2 whole, 4 covered), so a solve whose kept C fits need not find the contacts again
 CONTACTS = "ovrad_contacts"
 
-# EDGE attribute on an atlas object: one edge between each two overlapping patches (kept_overlaps.py).
-OVERLAP_C = "ovrad_c"  # FLOAT2, (C[i, j], C[j, i]) of the edge's vertices i < j (overlap.overlap_matrix's C)
+# EDGE attribute on an atlas object: one edge between each two overlapping patches (overlap/kept.py).
+OVERLAP_C = "ovrad_c"  # FLOAT2, (C[i, j], C[j, i]) of the edge's vertices i < j (overlap_matrix's C)
 
 # Custom properties on the atlas object.
 PROP_SOURCE = "ovrad_source"  # name of the source mesh object
@@ -34,7 +36,7 @@ PROP_LIGHT_KEY = "ovrad_light_key"  # hash of the lamps and emission the stored 
 # transport rays of the stored solve that left the scene (0: closed, the bakes leave the sky out)
 PROP_ESCAPED = "ovrad_escaped"
 PROP_ENVIRONMENT = "ovrad_environment_key"  # on the environment atlas: fingerprint of its surfaces
-# On an atlas object's mesh: the key of the overlaps kept on its edges (kept_overlaps.overlap_key).
+# On an atlas object's mesh: the key of the overlaps kept on its edges (overlap.kept.overlap_key).
 PROP_OVERLAP_KEY = "ovrad_overlap_key"
 # ... and the quadrature they were integrated with (AtlasSettings.rule_order; absent: 12).
 PROP_OVERLAP_QUADRATURE = "ovrad_overlap_quadrature"

@@ -11,19 +11,19 @@ SHAPE_MODES = ("AUTO", "DISKS", "SQUARES")
 SIDE_MODES = ("AUTO", "FRONT", "BOTH")
 
 
-# The rule of C (overlap.polar_rule: 4q rays, q // 4 rings; support_cuts: q points along a cut
-# ray) by the atlas's size. A final gather reads the light of the many patches its rays hit, so a
-# row's quadrature error is averaged over more patches the more there are. Measured on the
-# production room, every vertex scored, q = 8 against 12: 7.37 against 6.88 % at 2 172 patches,
-# 8.21 against 6.31 % at 9 461 (its curved BoomBox 17.7 against 12 %), 5.28 against 5.62 % at
-# 31 808, 4.98 against 4.97 % at 108 570 (Generate 54.6 against 80.9 s); the Cornell box and
-# lamps_doorway at 100 k patches to the digit (1.63 and 1.74 %). Rows of C against a rule of order
-# 24 on that room: 3.5 % off on average at 2 k patches with q = 8 (2.6 % with 12), 1.3 % at 100 k
-# (0.64 %). The coarse rule starts well above the largest count where it was seen to cost.
-# q = 6 against 8 at 100 k patches, in one sitting each: the production room 5.15 against 5.29 %
-# (Generate 49.8 against 58-75 s) and, on a second build of it, 6.48 against 7.37 % (42.1 against
-# 61.3 s); the Cornell box and lamps_doorway to the digit (1.63, 1.74 %). An earlier round's
-# build had given 5.56 against 5.28 %: the room's error moves more between builds than with q.
+# The rule of C (overlap/rule.py polar_rule: 4q rays, q // 4 rings; overlap/cuts.py support_cuts: q points
+# along a cut ray) by the atlas's size. A final gather reads the light of the many patches its rays hit,
+# so a row's quadrature error is averaged over more patches the more there are. Measured on the production
+# room, every vertex scored, q = 8 against 12: 7.37 against 6.88 % at 2 172 patches, 8.21 against 6.31 %
+# at 9 461 (its curved BoomBox 17.7 against 12 %), 5.28 against 5.62 % at 31 808, 4.98 against 4.97 % at
+# 108 570 (Generate 54.6 against 80.9 s); the Cornell box and lamps_doorway at 100 k patches to the digit
+# (1.63 and 1.74 %). Rows of C against a rule of order 24 on that room: 3.5 % off on average at 2 k
+# patches with q = 8 (2.6 % with 12), 1.3 % at 100 k (0.64 %). The coarse rule starts well above the
+# largest count where it measurably costs accuracy.
+# q = 6 against 8 at 100 k patches: the production room 5.15 against 5.29 % (Generate 49.8 against 58-75
+# s), 6.48 against 7.37 % (42.1 against 61.3 s) and 5.56 against 5.28 % on three builds of its atlas; the
+# Cornell box and lamps_doorway to the digit (1.63, 1.74 %). The room's error moves more between builds of
+# the atlas than with q.
 FINE_QUADRATURE = 12
 COARSE_QUADRATURE = 6
 COARSE_FROM = 50_000  # patches
@@ -119,17 +119,18 @@ MAX_GATHER_RAYS = 1 << 14  # final-gather rays per bake point at most
 class SolveSettings:
     """tolerance: stop when unshot power < tolerance x emitted power; rule: "exact" (eq. 9) or
     "paper" (the published update); rays_per_point: hemisphere rays per receiver point;
-    batch: shooters per step at least (solver.solve_progressive); light_samples: emitter samples
+    batch: shooters per step at least (radiosity.solver.solve_progressive); light_samples: emitter samples
     per receiver point (direct light);
     bake_samples: emitter samples per bake point (direct light at vertices and texels);
-    smoothing: weight of the overlap-graph Laplacian added to C when solving (see laplacian_smoothed()),
+    smoothing: weight of the overlap-graph Laplacian added to C when solving (see
+    radiosity/first_shot.py laplacian_smoothed()),
     0 solves equation (9) exactly; min_rays: transport rays cast at least, in all (a small atlas
     gets more receiver points and rays per point, see gather_transport); max_rays: at most (a large
     atlas casts fewer per receiver point, MAX_TRANSPORT_RAYS); gather_rays: final-gather
-    rays per bake point for its indirect light (gather.py), 0 reconstructs it from the patches
+    rays per bake point for its indirect light (bake/gather.py), 0 reconstructs it from the patches
     (Cornell box, 2 086 patches, every vertex: 5.6 % relative RMS with 0, 3.5 / 2.4 / 1.9 % with
     64 / 128 / 256 rays for +2.9 / 3.9 / 6.1 s over 8 482 vertices; benchmarks/gather_bench.py);
-    sky_samples / bake_sky_samples: world directions of the sky's fixed rule (sky.py) at the
+    sky_samples / bake_sky_samples: world directions of the sky's fixed rule (light/sky.py) at the
     solve's receiver points / at bake points. Their error is aliasing, not noise: a window is
     seen along the few directions of the rule that pass through it. Measured in the real-scenes
     window room (2.4 m, 1 x 1 m window), floor and back wall against 16 384 directions, relative
@@ -149,18 +150,19 @@ class SolveSettings:
     max_rays: int = MAX_TRANSPORT_RAYS
     gather_rays: int = 256
     # Gather hits closer than a patch radius get their direct light computed where they land
-    # (gather.NearField): Cornell box, 2 000 box patches, 256 rays, every vertex: 1.86 -> 1.65 %
-    # relative RMS, vertices within 5 mm of another object +2.7 -> +1.6 % bias; bake time +30 %.
+    # (bake/lattice.py NearField): Cornell box, 2 000 box patches, 256 rays, every vertex: 1.65 %
+    # relative RMS against 1.86 % without, vertices within 5 mm of another object +1.6 % bias
+    # against +2.7 %; bake time +30 %.
     near_field: bool = True
     sky_samples: int = 256
     bake_sky_samples: int = 1024
-    # Far transport hits link to clusters of patches (clusters.py) whose cell diagonal is under
+    # Far transport hits link to clusters of patches (radiosity/clusters.py) whose cell diagonal is under
     # this many times the hit's distance; 0: alpha at every hit. Measured at every vertex against
     # Cycles, angle 0 / 0.125 / 0.25: at 100 k patches lamps_doorway 1.76 / 1.74 / 1.83 %, the
     # Cornell box 1.65 / 1.64 / 1.64 %, transport 15.1 / 11.8 / 11.6 s and 16.5 / 11.4 / 11.4 s
     # (scale_bench.py); at 2 000 patches (real_scenes_bench.py) doorway 1.62 / 1.63 / 1.51 %,
     # lamps_doorway 1.76 / 1.77 / 1.68 %, the other seven within 0.03 points. At 0.5 the doorway
-    # went to 2.06 %: a large cluster seen near a receiver's horizon, or partly hidden, gives light
+    # is at 2.06 %: a large cluster seen near a receiver's horizon, or partly hidden, gives light
     # from where its rays do not land.
     cluster_angle: float = 0.125
 

@@ -177,28 +177,52 @@ def visible_meshes(scene, names) -> list:
     ]
 
 
-def pick_receivers(scene, wanted: list[str] | None, names) -> list:
+def unbakeable(obj, depsgraph) -> str | None:
+    """Why a mesh object cannot be baked, as its modifiers leave it (None: it can): no faces, or
+    coordinates that are not finite numbers."""
+    mesh = obj.evaluated_get(depsgraph).data
+    if len(mesh.polygons) == 0:
+        return "has no faces after its modifiers"
+    co = np.empty(3 * len(mesh.vertices), np.float32)
+    mesh.vertices.foreach_get("co", co)
+    if not np.all(np.isfinite(co)):
+        return "has NaN or infinite vertex coordinates (fix the mesh)"
+    return None
+
+
+def pick_receivers(scene, wanted: list[str] | None, names) -> tuple[list, list[dict]]:
+    """(the receivers to bake, [{object, why}] of those skipped). One object never stops the bake:
+    a named object that is not a mesh, or a mesh that cannot be baked, is skipped with a warning
+    and the others are baked."""
+    skipped = []
     if not wanted:
         found = visible_meshes(scene, names)
         if not found:
             raise BatchError("the scene has no visible mesh to bake")
-        return found
-    out, skipped = [], []
-    for name in wanted:
-        obj = scene.objects.get(name)
-        if obj is None:
-            meshes = ", ".join(o.name for o in visible_meshes(scene, names)) or "none"
-            raise BatchError(f"no object named '{name}' in the scene (meshes: {meshes})")
-        if obj.type != "MESH":
-            # one object never stops the bake: the others are baked
-            skipped.append(f"'{name}' is not a mesh ({obj.type.lower()})")
-            continue
-        out.append(obj)
+    else:
+        found = []
+        for name in wanted:
+            obj = scene.objects.get(name)
+            if obj is None:
+                meshes = ", ".join(o.name for o in visible_meshes(scene, names)) or "none"
+                raise BatchError(f"no object named '{name}' in the scene (meshes: {meshes})")
+            if obj.type != "MESH":
+                skipped.append(dict(object=name, why=f"is not a mesh ({obj.type.lower()})"))
+                continue
+            found.append(obj)
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    out = []
+    for obj in found:
+        why = unbakeable(obj, depsgraph)
+        if why is None:
+            out.append(obj)
+        else:
+            skipped.append(dict(object=obj.name, why=why))
     if not out:
-        raise BatchError("; ".join(skipped) + ": nothing to bake")
-    for why in skipped:
-        print(f"ovrad: warning: {why}: skipped", flush=True)
-    return out
+        raise BatchError("; ".join(f"'{s['object']}' {s['why']}" for s in skipped) + ": nothing to bake")
+    for s in skipped:
+        print(f"ovrad: warning: '{s['object']}' {s['why']}: skipped", flush=True)
+    return out, skipped
 
 
 def operator(op, **kw) -> None:
@@ -429,8 +453,11 @@ def save(args, out: str) -> None:
         bpy.ops.wm.save_as_mainfile(filepath=out, copy=True)
 
 
-def make_report(args, module, props, paths, receivers, atlases, stats, images, skipped) -> dict:
-    """The JSON report (without its seconds)."""
+def make_report(
+    args, module, props, paths, receivers, atlases, stats, images, skipped, skipped_objects
+) -> dict:
+    """The JSON report (without its seconds); skipped: receivers without a UV map (image bakes);
+    skipped_objects: [{object, why}] of the objects that could not be baked at all."""
     src, out = paths
     keys = ("rays", "unshot_fraction", "shots", "converged")
     report = dict(input=src, output=out, ovrad=module.__name__)
@@ -446,6 +473,7 @@ def make_report(args, module, props, paths, receivers, atlases, stats, images, s
     report["cluster_angle"] = round(props.cluster_angle, 6)
     report["transport_escaped"] = stats.get("transport_escaped")
     report |= dict(target=args.target, quantity=args.quantity, images=images, not_baked=skipped)
+    report["skipped"] = skipped_objects
     report["attribute"] = args.attribute if args.target == "vertex" else None
     return report
 
@@ -487,7 +515,7 @@ def run(args) -> dict:
         if args.picture and scene.camera is None:
             raise BatchError("the scene has no camera to render --picture from")
         apply_settings(scene.ovrad, args, module)
-        receivers = pick_receivers(scene, args.receivers, engine.names)
+        receivers, skipped_objects = pick_receivers(scene, args.receivers, engine.names)
         atlases = stages.run("generate", generate, scene, receivers, engine.names)
         stats = stages.run("solve", run_solve, module)
         for k in range(args.refine):
@@ -499,7 +527,7 @@ def run(args) -> dict:
         images, skipped = stages.run("bake", bake, args, receivers, out, engine.names)
         stages.run("save", save, args, out)
         report = make_report(
-            args, module, scene.ovrad, (src, out), receivers, atlases, stats, images, skipped
+            args, module, scene.ovrad, (src, out), receivers, atlases, stats, images, skipped, skipped_objects
         )
         if args.picture:
             stages.run("picture", render_picture, scene, receivers, atlases, args, engine.names)
@@ -511,6 +539,14 @@ def run(args) -> dict:
         with open(args.report, "w", encoding="utf-8") as fh:
             json.dump(report, fh, indent=2)
     return report
+
+
+def exit_on_failure(main) -> None:
+    """Run a script's main() as `blender -b -P` runs it: a failure ends Blender with main's exit
+    status; success returns, so Blender goes on with the arguments after the script."""
+    code = main()
+    if code:
+        sys.exit(code)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -539,6 +575,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    code = main()
-    if code:
-        sys.exit(code)
+    exit_on_failure(main)

@@ -104,6 +104,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    code = main()
-    if code:
-        sys.exit(code)
+    batch_module().exit_on_failure(main)

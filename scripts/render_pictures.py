@@ -1,4 +1,5 @@
-"""Render the README's pictures with Cycles (CPU): Cornell atlas by overlap, box vs smooth beta, figure 3."""
+"""Render the pictures under docs/img/ with Cycles (CPU): Cornell atlas by overlap, box vs smooth beta,
+figure 3."""
 
 # Usage: scripts/blender -b -P scripts/render_pictures.py -- [--out docs/img] [--samples 32]
 # Writes cornell_overlap.png, beta_box_smooth.png and figure3_box_smooth.png.
@@ -164,7 +165,9 @@ def figure3_colors(ovrad, beta: str, points: np.ndarray) -> np.ndarray:
     )
     down = np.tile([0.0, 0.0, -1.0], (len(points), 1))
     _, tri = index.rays.closest_hit(points - down, down, 2.0)  # the triangle under each point
-    alpha = engine.alpha_at(atlas, index, points, tri, np.ones(len(points)))
+    alpha = engine.alpha_at(
+        atlas, index, engine.find_contacts(atlas, index), points, tri, np.ones(len(points))
+    )
     color = engine.reconstruct(alpha, np.array([RED, GREEN]))
     covered = np.asarray(alpha.sum(axis=1)).ravel() > 0.5
     return np.where(covered[:, None], color, BACKGROUND)

@@ -34,11 +34,7 @@ class ClutterSamples:
 
 def clutter_samples(index, size: np.ndarray) -> ClutterSamples:
     """Samples of every clutter sheet; size (n_sheets,) the largest sub-triangle wanted on each
-    (only clutter sheets' entries are read). Cached on the index per size."""
-    cache_key = ("clutter_samples", np.asarray(size, np.float64).tobytes())
-    hit = index.cache.get(cache_key)
-    if hit is not None:
-        return hit
+    (only clutter sheets' entries are read)."""
     s, charts = index.surfaces, index.charts
     tri_all = np.flatnonzero(charts.chart >= 0)
     parts = []
@@ -74,9 +70,7 @@ def clutter_samples(index, size: np.ndarray) -> ClutterSamples:
         w, tri, sheet = np.zeros(0), np.zeros(0, np.int64), np.zeros(0, np.int64)
     keep = ~buried(index, pts, nrm, 1e-4 * size[sheet])
     key = position_key(pts)
-    out = ClutterSamples(pts[keep], nrm[keep], w[keep], tri[keep], sheet[keep], key[keep])
-    index.cache[cache_key] = out
-    return out
+    return ClutterSamples(pts[keep], nrm[keep], w[keep], tri[keep], sheet[keep], key[keep])
 
 
 def position_key(points: np.ndarray) -> np.ndarray:
@@ -149,21 +143,43 @@ def place_balls(index, spacing: np.ndarray, overlap: float) -> dict[int, dict[st
     return out
 
 
-def ball_quadrature(atlas, index, ids: np.ndarray, cap: int):
+@dataclass(frozen=True)
+class BallRule:
+    """The clutter samples an atlas's ball patches integrate over (their sizes from the atlas,
+    sample_size) and a KD-tree of them, each sheet `gap` apart along a fourth coordinate: made once
+    per atlas and index (ball_rule), where the work is prepared, and passed to every quadrature."""
+
+    size: np.ndarray
+    samples: ClutterSamples | None  # None: the atlas has no ball patches
+    tree: cKDTree | None
+    gap: float
+
+
+def ball_rule(atlas, index, reuse: BallRule | None = None) -> BallRule:
+    """The BallRule of an atlas on an index; `reuse` itself when its sample sizes are the atlas's
+    (patches dropped from an atlas leave them alone unless the largest ball of a sheet goes)."""
+    size = sample_size(atlas, len(index.sheet_chart))
+    if reuse is not None and np.array_equal(reuse.size, size):
+        return reuse
+    if not np.any(atlas.shapes == SHAPE_BALL):
+        return BallRule(size, None, None, 0.0)
+    smp = clutter_samples(index, size)
+    if len(smp.points) == 0:
+        return BallRule(size, smp, None, 0.0)
+    ball = atlas.shapes == SHAPE_BALL
+    gap = 4.0 * float(atlas.radii[ball].max()) + 4.0 * float(np.abs(smp.points).max()) + 1.0
+    return BallRule(size, smp, cKDTree(np.column_stack([smp.points, smp.sheet * gap])), gap)
+
+
+def ball_quadrature(atlas, ids: np.ndarray, cap: int, rule: BallRule):
     """Rule of the ball patches `ids`: (owner, points, normals, weights, triangle), owner a
     position in ids. Every clutter sample of the patch's sheet inside its ball, or, where more
     than `cap` are, the first `cap` in the samples' fixed order with their weights scaled so the
-    patch keeps its total area."""
-    smp = clutter_samples(index, sample_size(atlas, len(index.sheet_chart)))
-    if len(ids) == 0 or len(smp.points) == 0:
+    patch keeps its total area. rule: the atlas's (ball_rule)."""
+    smp, kd, gap = rule.samples, rule.tree, rule.gap
+    if len(ids) == 0 or kd is None:
         z = np.zeros(0, np.int64)
         return z, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), z
-    gap = 4.0 * float(atlas.radii[ids].max()) + 4.0 * float(np.abs(smp.points).max()) + 1.0
-    tree = index.cache.get("clutter_tree")
-    if tree is None or tree[0] is not smp:
-        tree = (smp, cKDTree(np.column_stack([smp.points, smp.sheet * gap])), gap)
-        index.cache["clutter_tree"] = tree
-    _, kd, gap = tree
     q = np.column_stack([atlas.centers[ids], atlas.sheet[ids] * gap])
     found = kd.query_ball_point(q, r=atlas.radii[ids] * (1.0 + 1e-9), return_sorted=False)
     counts = np.fromiter((len(f) for f in found), np.int64, len(ids))

@@ -33,8 +33,9 @@ CLUTTER_AREA = 0.1  # a chart with less area than this times its spacing squared
 # itself (the production room's BoomBox at 100 k patches: a 4 cm^2 knob, 0.18 of a cell, met only
 # other parts of the model along its 4.5 cm disk's normal; its patch had no support, was dropped,
 # and the knob baked black). Ball patches hold the pieces' own samples. A quarter, not a whole
-# cell: at the room's default 2 000 patches a whole cell turned most of the BoomBox into balls,
-# whose mean light its underside then read (its error 11.3 -> 13.4 %; a quarter: 11.2 %).
+# cell: at the room's default 2 000 patches a whole cell turns most of the BoomBox into balls,
+# whose mean light its underside then reads (its error 13.4 % with a whole cell, 11.2 % with a
+# quarter, 11.3 % with plain patches).
 CURVED_CLUTTER_AREA = 0.25
 
 

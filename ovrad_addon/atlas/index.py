@@ -3,13 +3,14 @@ and the ray backend (SurfaceIndex), with the spacing of each sheet and points bu
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 import numpy as np
 
 from ..atlas import clutter as clutter_mod
 from ..errors import OvradError
+from ..geometry import unique_rows
 from ..scene.rays import EmbreeRays, NumpyRays, make_rays
 from ..scene.surfaces import Charts, Surfaces, find_charts
 from ..settings import AtlasSettings
@@ -22,7 +23,7 @@ class SurfaceIndex:
     sheet_table (n_charts, 2): sheet index of each chart's front (column 0) and back (column 1)
     side, -1 where that side has no patches. sheet_chart, sheet_side (n_sheets,). sheet_clutter
     (n_sheets,): the sheet holds the clutter charts of one object on one side (clutter.py), and
-    its sheet_chart is one of them. cache: what is derived from the index once (clutter samples).
+    its sheet_chart is one of them.
     """
 
     surfaces: Surfaces
@@ -35,7 +36,6 @@ class SurfaceIndex:
     sheet_side: np.ndarray
     rays: NumpyRays | EmbreeRays
     sheet_clutter: np.ndarray
-    cache: dict = field(init=False, default_factory=dict, compare=False, repr=False)
 
     def sheet_of(self, triangle: np.ndarray, side: np.ndarray) -> np.ndarray:
         """Sheet index (or -1) of surface points on `triangle` seen from `side` (+1 front, -1 back)."""
@@ -66,6 +66,24 @@ class SurfaceIndex:
         rows = np.nonzero(has)[0]
         weights = self.charts.chart_areas[rows]
         return np.bincount(self.sheet_table[has], weights=weights, minlength=len(self.sheet_chart))
+
+    @cached_property
+    def chart_borders(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Each chart's border: its edges that only one of its triangles uses (vertices welded as
+        find_charts welds them, Surfaces.welded), as (start (n_charts + 1,), a (E, 3), b (E, 3)): chart
+        c's edges run from a to b in rows start[c]:start[c + 1] (overlap.cuts.border_crossings)."""
+        surfaces, charts = self.surfaces, self.charts
+        first, weld = surfaces.welded
+        tri = np.flatnonzero(charts.chart >= 0)
+        t = weld[surfaces.triangles[tri]]
+        e = np.sort(np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]]), axis=1)
+        c = np.tile(charts.chart[tri], 3)
+        keep = e[:, 0] != e[:, 1]
+        edges, uses = unique_rows(np.column_stack([c[keep], e[keep]]), return_counts=True)
+        border = edges[uses == 1]  # sorted by chart
+        start = np.searchsorted(border[:, 0], np.arange(charts.count + 1))
+        at = surfaces.vertices[first]
+        return start, at[border[:, 1]], at[border[:, 2]]
 
 
 def _chart_planarity(surfaces: Surfaces, charts: Charts) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -27,7 +27,7 @@ class Atlas:
     without searching: the sheet is (chart of that triangle, side); triangle is counted among the
     source object's own triangles, so it stays valid when other objects change. None (or -1
     entries) for atlases made before they existed: their sheets are found by locating the patch.
-    anchor (n, 3): the point of its sheet a patch sees its support from (contact.py); None (or NaN
+    anchor (n, 3): the point of its sheet a patch sees its support from (overlap/contacts.py); None (or NaN
     rows) where it was not stored: then the rule point nearest the centre.
     """
 
@@ -64,14 +64,26 @@ class Atlas:
 
     @cached_property
     def grid(self):
-        """PatchGrid (lookup.py): the candidate patches of surface points, by sheet and cell."""
-
+        """PatchGrid (atlas/lookup.py): the candidate patches of surface points, by sheet and cell."""
         return PatchGrid.build(self)
 
     @cached_property
     def bitangents(self) -> np.ndarray:
         """(n, 3) second in-plane axis, normal x tangent."""
         return np.cross(self.normals, self.tangents)
+
+    @property
+    def placement(self) -> tuple[np.ndarray, ...]:
+        """The arrays that place and shape each patch, in a fixed order (content keys hash them)."""
+        return (
+            self.centers,
+            self.normals,
+            self.tangents,
+            self.radii,
+            self.shapes,
+            self.thickness,
+            self.min_cos,
+        )
 
     def select(self, mask) -> Atlas:
         """The patches where mask is true (or the given indices), same beta."""

@@ -9,7 +9,7 @@ irradiance is pi x the mean incoming radiance, and a hit point N sends L = B(N) 
 
     E_ind(M) = mean over the rays of B_reflected(hit),  B_reflected = sum_k alpha_k(hit) (B_k - E_k)
 
-with alpha at the hit on the side the ray arrives at (the transport's machinery, lookup.py). E_k
+with alpha at the hit on the side the ray arrives at (the transport's machinery, atlas/lookup.py). E_k
 is the emission that M computes for itself as direct light (the emitters its shadow rays sample):
 an emitter sends back only what it reflects. The hit's reflected radiosity is taken whole, direct
 light included: the sun patch on the floor lights the wall as indirect light. Rays that escape, or
@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.stats import qmc
@@ -73,16 +74,16 @@ def hemisphere_pattern(count: int, seed: int = GATHER_SEED) -> np.ndarray:
     return np.column_stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(1.0 - u[:, 0], 0.0))])
 
 
-# Shadow-ray samples of soft lamps and emitters at a near hit. At 16, the near hits' direct light
-# (24 M hits, their shadow rays and the numpy around them) was about 45 % of the production room's
-# vertex bake (py-spy); at 8 (a quad emitter: 8 points instead of 18) the bake took
-# 106.7 s against 139.5 s, its error 6.857 % against 6.849 % at every vertex, and the ten real
-# scenes' errors did not move in the third digit (real_scenes_bench.py): a near hit's light is
-# averaged over hundreds of gather rays, where a coarser rule's steps in a penumbra even out.
+# Shadow-ray samples of soft lamps and emitters at a near hit. With 16, the near hits' direct light
+# (24 M hits, their shadow rays and the numpy around them) is about 45 % of the production room's
+# vertex bake (py-spy); with 8 (a quad emitter: 8 points against 18) the bake takes 106.7 s against
+# 139.5 s, its error 6.857 % against 6.849 % at every vertex, and the ten real scenes' errors agree
+# in the third digit (benchmarks/real_scenes_bench.py): a near hit's light is averaged over
+# hundreds of gather rays, where a coarser rule's steps in a penumbra even out.
 NEAR_LIGHT_SAMPLES = 8
 
 # ... but emitters of this many triangles or more, whose samples are picked on power and whose
-# light tree takes each point's near field (direct._near_picked), keep this many: 8 picks stand
+# light tree takes each point's near field (light.tree.near_picked), keep this many: 8 picks stand
 # farther apart and widen every near hit's near field (the large interior's 20 000-point bake at
 # 4 777 patches: 74 s at 8, 42 s at 16, 42 s at 32; 8 is 0.47 % RMS off 16 and 32, which agree)
 NEAR_PICKED_SAMPLES = 16
@@ -90,44 +91,50 @@ NEAR_PICKED_SAMPLES = 16
 NEAR_SKY_SAMPLES = 256  # world directions at a near hit
 
 
-def gather_indirect(
-    problem,
-    radiosity: np.ndarray,
-    emission: np.ndarray,
-    points,
-    normals,
-    rays: int,
-    triangles=None,
-    progress: Callable[[float], None] | None = None,
-    chunk_rays: int = 1 << 17,
-    workers: int = WORKERS,
-    near: NearField | None = None,
-    corner_alpha: float = CORNER_ALPHA,
-    spread: np.ndarray | None = None,
-    corner_cache: dict | None = None,
-) -> np.ndarray:
-    """Indirect irradiance (m, 3) in W/m^2 at points (m, 3) with unit normals (m, 3).
+@dataclass(frozen=True)
+class Gather:
+    """What a final gather reads where its rays land, and how it casts them.
 
     radiosity (n, 3): the solved B; emission (n, 3): the per-patch exitance not to count at the
     hits (what the points get as direct light: sampled_emission; zeros to count every emitter).
-    rays: directions per point (best a power of two, see hemisphere_pattern()). triangles (m,): the triangle
-    each point lies on; rays then start a hair inside it (inside()), which a point on a concave
-    edge needs (a wall's foot: else the rays aimed into the wall start behind it and see nothing).
-    Points go in chunks of about
-    chunk_rays rays on `workers` threads; progress(fraction) is called on the calling thread.
-    near: evaluate hits closer than a patch radius where they are (see NearField), else from the
-    patches like the others. corner_alpha: hits read the patches' values from a lattice over their
-    triangle at most this x the smallest patch radius fine (CornerCache; 0: alpha at every hit).
+    rays: directions per point (best a power of two, see hemisphere_pattern()). near: evaluate
+    hits closer than a patch radius where they are (see NearField), else from the patches like the
+    others. corner_alpha: hits read the patches' values from a lattice over their triangle at most
+    this x the smallest patch radius fine (CornerCache; 0: alpha at every hit). corner_cache: a dict
+    the caller that owns one bake keeps across its calls (the same problem, radiosity, emission and
+    near field: the bake's receivers and chunks): they share one CornerCache per ray count and
+    corner_alpha, whose nodes are then filled once for all of them (a floor's lattice under many
+    objects) and built once. Points go in chunks of about chunk_rays rays on `workers` threads;
+    progress(fraction) is called on the calling thread after each.
+    """
+
+    radiosity: np.ndarray
+    emission: np.ndarray
+    rays: int
+    near: NearField | None = None
+    corner_alpha: float = CORNER_ALPHA
+    corner_cache: dict | None = None
+    chunk_rays: int = 1 << 17
+    workers: int = WORKERS
+    progress: Callable[[float], None] | None = None
+
+
+def gather_indirect(problem, gather: Gather, points, normals, triangles=None, spread=None) -> np.ndarray:
+    """Indirect irradiance (m, 3) in W/m^2 at points (m, 3) with unit normals (m, 3), gathered as
+    `gather` says.
+
+    triangles (m,): the triangle each point lies on; rays then start a hair inside it (inside()),
+    which a point on a concave edge needs (a wall's foot: else the rays aimed into the wall start
+    behind it and see nothing).
     spread (m, k, 3): the weighted normals N_j each point gathers for (shared_normals; the normals
     must be their gather_axis): a ray in direction d then counts sum_j max(0, N_j . d) / (n . d)
     times what it brings, so the gather estimates the weighted mean of the irradiances about each
     N_j; the light from below n's horizon but above an N_j's, which no ray samples, is taken as the
     light of the lowest rays (those under 20 degrees of elevation, at least one; exact under an even
     sky and for light from above every horizon).
-    corner_cache: a dict the caller keeps across calls with the same problem, radiosity, emission
-    and near field (one bake's receivers and chunks): they share one CornerCache, whose nodes are
-    then filled once for all of them (a floor's lattice under many objects) and built once.
     """
+    rays, near, corner_alpha = gather.rays, gather.near, gather.corner_alpha
+    corner_cache = gather.corner_cache
     pts = np.asarray(points, np.float64).reshape(-1, 3)
     nrm = np.asarray(normals, np.float64).reshape(-1, 3)
     m = len(pts)
@@ -141,7 +148,7 @@ def gather_indirect(
         spread = np.asarray(spread, np.float64).reshape(m, np.shape(spread)[-2], 3)
     if triangles is not None:
         pts = inside(index.surfaces, pts, triangles)
-    values = np.asarray(radiosity, np.float64) - np.asarray(emission, np.float64)
+    values = np.asarray(gather.radiosity, np.float64) - np.asarray(gather.emission, np.float64)
     local = hemisphere_pattern(rays)
     # the rays that tell the light seen low (a spread's missed part): a cosine pattern puts
     # sin^2 of its rays under an elevation; at least the lowest one
@@ -149,10 +156,12 @@ def gather_indirect(
     t_all, b_all = tangent_frame(nrm)
     eps = 1e-6 * index.surfaces.extent
     _ = atlas.grid  # build the lookup once, before the threads need it
-    step = max(1, chunk_rays // rays)
+    step = max(1, gather.chunk_rays // rays)
     starts = list(range(0, m, step))
-    key = (id(problem), rays, corner_alpha)
+    key = (rays, corner_alpha)
     cache = None if corner_cache is None else corner_cache.get(key)
+    if cache is not None and cache.problem is not problem:
+        raise ValueError("a corner cache serves one bake of one problem: give each bake its own")
     if cache is None:
         cache = CornerCache(problem, values, near, corner_alpha, rays)
         if corner_cache is not None:
@@ -205,10 +214,10 @@ def gather_indirect(
         out[several] = (g * (cos / local[None, :, 2])[..., None]).mean(axis=1) + missed[:, None] * low
         return sl, out
 
-    for sl, e in threaded(chunk, len(starts), workers):
+    for sl, e in threaded(chunk, len(starts), gather.workers):
         out[sl] = e
-        if progress is not None:
-            progress(sl.stop / m)
+        if gather.progress is not None:
+            gather.progress(sl.stop / m)
     return out
 
 
@@ -229,7 +238,7 @@ def _near_values(problem, near: NearField, cache, points, triangles, sides, t, s
         normals = np.take(index.charts.normals, tri, axis=0) * sides[exact, None]
         sky_at = None if sky is None else sky[exact]
         at = np.take(pts, exact, axis=0)
-        H[exact] = direct_irradiance(surfaces, index.rays, near.light, at, normals, sky_at)[0]
+        H[exact] = direct_irradiance(problem.emitter_rules, index.rays, near.light, at, normals, sky_at)[0]
     return surfaces.reflectance_at(triangles, pts) * H
 
 
@@ -311,19 +320,7 @@ def gather_axis(spread: np.ndarray) -> np.ndarray:
     return total / np.maximum(np.linalg.norm(total, axis=1, keepdims=True), 1e-300)
 
 
-def gather_unique(
-    problem,
-    radiosity: np.ndarray,
-    emission: np.ndarray,
-    points,
-    normals,
-    rays: int,
-    triangles=None,
-    progress: Callable[[float], None] | None = None,
-    near: NearField | None = None,
-    spread: np.ndarray | None = None,
-    corner_cache: dict | None = None,
-) -> np.ndarray:
+def gather_unique(problem, gather: Gather, points, normals, triangles=None, spread=None) -> np.ndarray:
     """gather_indirect once per distinct (position, normal) (within 1e-7 of the scene extent),
     scattered back to every point: repeated points cost one gather (from the first one's
     triangle; spread: the first one's, see gather_indirect)."""
@@ -335,17 +332,4 @@ def gather_unique(
     if spread is not None:
         spread = np.asarray(spread, np.float64)
         spread = spread.reshape(len(inverse), spread.shape[-2], 3)[first]
-    out = gather_indirect(
-        problem,
-        radiosity,
-        emission,
-        pts,
-        nrm,
-        rays,
-        tri,
-        progress,
-        near=near,
-        spread=spread,
-        corner_cache=corner_cache,
-    )
-    return out[inverse]
+    return gather_indirect(problem, gather, pts, nrm, tri, spread)[inverse]

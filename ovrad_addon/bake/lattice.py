@@ -22,7 +22,7 @@ class NearField:
     `light` computed at the hit, plus from the patches (n, 3 each) `indirect` (the solved radiosity
     less its first shot and emission: the light that came by way of other surfaces) and `extra` (the
     emission the far hits count too: emitters the bake points do not sample as direct light).
-    sky_seen (n,) bool: the patches whose near hits cast sky rays (pipeline.sky_patches); None:
+    sky_seen (n,) bool: the patches whose near hits cast sky rays (radiosity.emission.sky_patches); None:
     every one, if the light has a sky. corner_size: a hit on a triangle whose longest edge is at
     most this x the hit's distance (with 256 gather rays; x sqrt(256 / rays) with others) takes its
     direct light from the triangle's corners (CornerCache); 0: every near hit casts shadow rays."""
@@ -37,7 +37,7 @@ class NearField:
 
 def may_see_sky(alpha, seen: np.ndarray | None) -> np.ndarray | None:
     """(k,) bool: the points (alpha (k, n) of the patches there) that may see the sky: a patch
-    there is marked in `seen` (n,) (pipeline.sky_patches), or none covers them; None: all of them
+    there is marked in `seen` (n,) (radiosity.emission.sky_patches), or none covers them; None: all of them
     (seen is None)."""
     if seen is None:
         return None
@@ -138,7 +138,7 @@ class CornerCache:
 
     def _values(self, tri, side, pts) -> np.ndarray:
         pts = inside(self.problem.index.surfaces, pts, tri)
-        a = alpha_at(self.problem.atlas, self.problem.index, pts, tri, side)
+        a = alpha_at(self.problem.atlas, self.problem.index, self.problem.contacts, pts, tri, side)
         return _patch_values(self.problem, a, self.values, self.near)
 
     def _light(self, tri, side, pts) -> np.ndarray:
@@ -148,8 +148,10 @@ class CornerCache:
         normals = index.charts.normals[tri] * side[:, None]
         sky_at = None
         if near.light.sky is not None and near.sky_seen is not None:
-            sky_at = may_see_sky(alpha_at(problem.atlas, index, pts, tri, side), near.sky_seen)
-        return direct_irradiance(index.surfaces, index.rays, near.light, pts, normals, sky_at)[0]
+            sky_at = may_see_sky(
+                alpha_at(problem.atlas, index, problem.contacts, pts, tri, side), near.sky_seen
+            )
+        return direct_irradiance(problem.emitter_rules, index.rays, near.light, pts, normals, sky_at)[0]
 
     def light_at(self, points, triangles, sides) -> np.ndarray:
         """Near-field direct irradiance (k, 3) at points on triangles (k,), seen from sides (k,)."""
@@ -170,7 +172,14 @@ class CornerCache:
             exact |= (n > 1) & (t < LATTICE_REACH * out[:, 6])
         e = np.flatnonzero(exact)
         if len(e):
-            a = alpha_at(problem.atlas, problem.index, np.take(points, e, axis=0), triangles[e], sides[e])
+            a = alpha_at(
+                problem.atlas,
+                problem.index,
+                problem.contacts,
+                np.take(points, e, axis=0),
+                triangles[e],
+                sides[e],
+            )
             out[e] = _patch_values(problem, a, self.values, self.near)
         sky = None
         if self.near is not None and self.near.light.sky is not None and self.near.sky_seen is not None:

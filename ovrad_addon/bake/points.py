@@ -3,7 +3,7 @@ the indirect light from the final gather, or from the patches when the gather is
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -14,7 +14,14 @@ from ..radiosity.emission import bake_sky, own_emission, patch_emission
 from ..radiosity.first_shot import emitter_sample_count
 from ..radiosity.problem import Problem
 from ..scene.surfaces import Surfaces
-from .gather import NEAR_LIGHT_SAMPLES, NEAR_PICKED_SAMPLES, NEAR_SKY_SAMPLES, gather_axis, gather_unique
+from .gather import (
+    NEAR_LIGHT_SAMPLES,
+    NEAR_PICKED_SAMPLES,
+    NEAR_SKY_SAMPLES,
+    Gather,
+    gather_axis,
+    gather_unique,
+)
 from .lattice import NearField, may_see_sky
 
 
@@ -47,31 +54,38 @@ def bake_normals(problem: Problem, triangles, sides) -> np.ndarray:
     return normals
 
 
-def _at_points(
-    problem: Problem,
-    radiosity,
-    points,
-    triangles,
-    sides,
-    first_shot,
-    light,
-    gather_points=None,
-    indirect=None,
-    gather_normals=None,
-    corner_cache=None,
-):
+@dataclass(frozen=True)
+class BakeRequest:
+    """What a bake asks at its points: the solved radiosity (n, 3); the solve's first shot (n, 3) and
+    its light (DirectLight): with both, the points get their direct light computed where they are
+    and only the rest from the patches (else all of it from the patches). For the final gather
+    (light.gather_rays > 0): gather_points (m, 3) where it casts its rays from (default: the points),
+    gathered once per distinct position and normal; indirect (m, 3) the gathered irradiance itself,
+    computed by the caller (e.g. at fewer points and interpolated), used instead of gathering;
+    gather_normals (m, k, 3) the weighted normals each point's gather stands for
+    (bake.gather.shared_normals; default: the point's own normal); corner_cache: a dict kept over one
+    bake's calls (bake.gather.gather_indirect). The per-point fields go with the points of one call."""
+
+    radiosity: np.ndarray
+    first_shot: np.ndarray | None = None
+    light: DirectLight | None = None
+    gather_points: np.ndarray | None = None
+    indirect: np.ndarray | None = None
+    gather_normals: np.ndarray | None = None
+    corner_cache: dict | None = None
+
+
+def _at_points(problem: Problem, request: BakeRequest, points, triangles, sides):
     """What both reconstructions need at surface points: triangles (m,), alpha (m, n), the
     coefficients the patches reconstruct, and the direct irradiance (m, 3) computed at the points
-    where the solve's first shot is split off (else None). gather_points (m, 3): where the final
-    gather casts its rays from (default: the points), gathered once per distinct position and normal;
-    indirect (m, 3): the gathered irradiance itself, computed by the caller (e.g. at fewer points
-    and interpolated), used instead of gathering; gather_normals (m, k, 3): the weighted normals each
-    point's gather stands for (gather.shared_normals; default: the point's own normal). corner_cache:
-    see gather.gather_indirect (a dict kept over one bake's calls)."""
+    where the solve's first shot is split off (else None)."""
+    radiosity, first_shot, light = request.radiosity, request.first_shot, request.light
+    gather_points, indirect, gather_normals = request.gather_points, request.indirect, request.gather_normals
+    corner_cache = request.corner_cache
     tri = np.asarray(triangles, np.int64)
     pts = np.asarray(points, np.float64).reshape(-1, 3)
     side = np.broadcast_to(np.asarray(sides), tri.shape)
-    a = alpha_at(problem.atlas, problem.index, pts, tri, side)
+    a = alpha_at(problem.atlas, problem.index, problem.contacts, pts, tri, side)
     if first_shot is None or light is None:
         return tri, a, radiosity, None
     if first_shot.shape != radiosity.shape:
@@ -79,10 +93,10 @@ def _at_points(
     normals = bake_normals(problem, tri, side)
     seen = bake_sky(problem, light, radiosity)
     sky_at = may_see_sky(a, seen)
-    H = direct_irradiance(problem.surfaces, problem.index.rays, light, pts, normals, sky_at)[0]
+    H = direct_irradiance(problem.emitter_rules, problem.index.rays, light, pts, normals, sky_at)[0]
     covered = np.asarray(a.sum(axis=1)).ravel() > 0
     coeffs = radiosity - first_shot
-    # --- final gather (gather.py): the indirect light comes from rays cast at the points, the
+    # --- final gather (bake/gather.py): the indirect light comes from rays cast at the points, the
     # patches give only the points' own emission; a point needs no patch, only a lit side (sheet)
     if light.gather_rays > 0:
         index = problem.index
@@ -98,71 +112,41 @@ def _at_points(
                     light,
                     samples=few,
                     emitter_samples=emitter_sample_count(
-                        problem.surfaces, light, min(light.samples, NEAR_PICKED_SAMPLES), few
+                        problem.emitter_rules, light, min(light.samples, NEAR_PICKED_SAMPLES), few
                     ),
                     sky_samples=min(light.sky_samples, NEAR_SKY_SAMPLES),
                     area_jittered=True,
                 )
                 near = NearField(near_light, radiosity - first_shot - coeffs, coeffs - own, sky_seen=seen)
             at = pts if gather_points is None else np.asarray(gather_points, np.float64).reshape(-1, 3)
-            if gather_normals is None:
-                H = H + gather_unique(
-                    problem,
-                    radiosity,
-                    own,
-                    at,
-                    normals,
-                    light.gather_rays,
-                    tri,
-                    near=near,
-                    corner_cache=corner_cache,
-                )
-            else:
+            axis, spread = normals, None
+            if gather_normals is not None:
                 spread = np.asarray(gather_normals, np.float64)
                 spread = spread.reshape(len(pts), spread.shape[-2], 3)
                 axis = gather_axis(spread)
-                rays = light.gather_rays
-                H = H + gather_unique(
-                    problem,
-                    radiosity,
-                    own,
-                    at,
-                    axis,
-                    rays,
-                    tri,
-                    near=near,
-                    spread=spread,
-                    corner_cache=corner_cache,
-                )
+            H = H + gather_unique(
+                problem,
+                Gather(radiosity, own, light.gather_rays, near=near, corner_cache=corner_cache),
+                at,
+                axis,
+                tri,
+                spread=spread,
+            )
         covered = (index.sheet_of(tri, side) >= 0) | without_area(problem, tri)  # see bake_normals
     # --- end of final gather
     return tri, a, coeffs, np.where(covered[:, None], H, 0.0)
 
 
-def radiance_at(
-    problem: Problem,
-    radiosity: np.ndarray,
-    points,
-    triangles,
-    sides=1,
-    first_shot: np.ndarray | None = None,
-    light: DirectLight | None = None,
-    gather_points=None,
-    indirect=None,
-    gather_normals=None,
-    corner_cache=None,
-) -> np.ndarray:
-    """Outgoing radiance L = B / pi (m, 3) reconstructed at surface points; 0 where no patch covers.
+def radiance_at(problem: Problem, request: BakeRequest, points, triangles, sides=1) -> np.ndarray:
+    """Outgoing radiance L = B / pi (m, 3) reconstructed at surface points (m, 3) on triangles (m,),
+    seen from sides (m,) +-1; 0 where no patch covers.
 
-    With the solve's first shot and its direct light, the points get their direct light computed
-    where they are (shadow rays) and only the rest of the radiosity from the patches. The light a
-    point reflects is its own albedo (surfaces.reflectance_at: a texture's where there is one)
-    times the irradiance there. gather_points, indirect, gather_normals: where and about what the
-    final gather casts, or its result; corner_cache: a dict kept over one bake's calls (see
-    _at_points).
+    With the solve's first shot and its direct light (request), the points get their direct light
+    computed where they are (shadow rays) and only the rest of the radiosity from the patches. The
+    light a point reflects is its own albedo (surfaces.reflectance_at: a texture's where there is
+    one) times the irradiance there.
     """
-    gather = (gather_points, indirect, gather_normals, corner_cache)
-    tri, a, coeffs, H = _at_points(problem, radiosity, points, triangles, sides, first_shot, light, *gather)
+    tri, a, coeffs, H = _at_points(problem, request, points, triangles, sides)
     surfaces = problem.surfaces
     albedo = surfaces.reflectance_at(tri, np.asarray(points, np.float64).reshape(-1, 3))
     out = reconstruct(a, coeffs)
@@ -170,15 +154,26 @@ def radiance_at(
     if np.any(textured):
         # a patch holds its mean albedo x its light: the reflected light the patches reconstruct
         # on a textured triangle takes the texture's detail, as albedo(M) / the triangle's mean
-        E = patch_emission(problem, light.emission_scale if light is not None else 1.0)
-        reflected = reconstruct(a[textured], coeffs - E)
-        rho = surfaces.reflectance[tri[textured]]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            gain = np.where(rho > 0, albedo[textured] / rho, 0.0)
+        reflected = _reflected(problem, request.light, a[textured], coeffs)
+        gain = _per_albedo(albedo[textured], surfaces.reflectance[tri[textured]])
         out[textured] += reflected * (gain - 1.0)
     if H is not None:
         out += albedo * H
     return out / np.pi
+
+
+def _reflected(problem: Problem, light: DirectLight | None, a, coeffs: np.ndarray) -> np.ndarray:
+    """The light the patches reconstruct with alpha `a` that their surfaces reflect: coeffs less the
+    patches' emission."""
+    return reconstruct(
+        a, coeffs - patch_emission(problem, light.emission_scale if light is not None else 1.0)
+    )
+
+
+def _per_albedo(values: np.ndarray, rho: np.ndarray) -> np.ndarray:
+    """values / rho where the albedo rho > 0, else 0."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(rho > 0, values / rho, 0.0)
 
 
 def _textured(surfaces: Surfaces, triangles: np.ndarray) -> np.ndarray:
@@ -188,30 +183,13 @@ def _textured(surfaces: Surfaces, triangles: np.ndarray) -> np.ndarray:
     return surfaces.albedo.image_of[triangles] >= 0
 
 
-def irradiance_at(
-    problem: Problem,
-    radiosity: np.ndarray,
-    points,
-    triangles,
-    sides=1,
-    first_shot: np.ndarray | None = None,
-    light: DirectLight | None = None,
-    gather_points=None,
-    indirect=None,
-    gather_normals=None,
-    corner_cache=None,
-) -> np.ndarray:
+def irradiance_at(problem: Problem, request: BakeRequest, points, triangles, sides=1) -> np.ndarray:
     """Light arriving at surface points without the surface's albedo: H / pi (m, 3), in the units
     of radiance (a white surface's radiance), from B(M) - E(M) = rho(M) H(M); 0 where rho is 0
     (direct light at the points where it is split off, as in radiance_at). On a textured triangle
     the patches' reflected light is divided by the triangle's mean albedo, what they hold."""
-    gather = (gather_points, indirect, gather_normals, corner_cache)
-    tri, a, coeffs, H = _at_points(problem, radiosity, points, triangles, sides, first_shot, light, *gather)
-    E = patch_emission(problem, light.emission_scale if light is not None else 1.0)
-    reflected = reconstruct(a, coeffs - E)
-    rho = problem.surfaces.reflectance[tri]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        out = np.where(rho > 0, reflected / rho, 0.0)
+    tri, a, coeffs, H = _at_points(problem, request, points, triangles, sides)
+    out = _per_albedo(_reflected(problem, request.light, a, coeffs), problem.surfaces.reflectance[tri])
     if H is not None:
         out += H
     return out / np.pi

@@ -16,12 +16,13 @@ from ..atlas.index import SurfaceIndex, index_surfaces, sheet_spacing
 from ..atlas.patches import Atlas
 from ..errors import OvradError
 from ..geometry import ranges_flat, start_of
-from ..overlap.contacts import carry_over, contact_flags, contacts, split_at_contacts
+from ..overlap.contacts import contact_flags, contacts, split_at_contacts
 from ..overlap.matrix import neighbour_pairs, overlap_matrix
+from ..overlap.sight import Contacts
 from ..progress import StageCallback, report_stage
 from ..scene.surfaces import Surfaces
 from ..settings import AtlasSettings
-from .curved import place_curved_many, sample_counts
+from .curved import SAMPLE_SPLIT, place_curved_many, sample_counts
 from .planar import Placed, grid_angle, place_planar_many, place_planar_small
 
 COUNT_TOLERANCE = 0.1  # a patch count this close to the target needs no second correction
@@ -35,7 +36,7 @@ def place_all(
     count_only: bool = False,
 ) -> tuple[list[Placed], int]:
     """Place patches sheet by sheet; each Placed's triangle holds global triangle indices. angles:
-    planar sheets' grid angles (placement.grid_angle) by sheet, kept across placements (filled here).
+    planar sheets' grid angles (generate.planar.grid_angle) by sheet, kept across placements (filled here).
     count_only: the count is all that is needed (a placement that only sets the next spacing): the
     planar and curved sheets are counted, not placed (the list then lacks them)."""
     angles = {} if angles is None else angles
@@ -142,12 +143,12 @@ CURVED_BATCH = 1 << 15  # samples per batch of curved sheets placed at once
 
 def _curved_batches(index, spacing, sheets, n_per, start, by_chart) -> list[np.ndarray]:
     """Curved sheets in consecutive batches of about CURVED_BATCH samples each (the samples of
-    placement.sample_sheets at spacing / 6, and the corners); a larger sheet alone."""
+    generate.curved.sample_sheets at spacing / 6, and the corners); a larger sheet alone."""
     if len(sheets) == 0:
         return []
     c = index.sheet_chart[sheets]
     tri = by_chart[ranges_flat(start[c], n_per[c])]
-    gap = (spacing[sheets] / 6.0)[np.repeat(np.arange(len(sheets)), n_per[c])]
+    gap = (spacing[sheets] / SAMPLE_SPLIT)[np.repeat(np.arange(len(sheets)), n_per[c])]
     per_tri = sample_counts(index.charts.areas[tri], gap) + 3
     cost = np.add.reduceat(per_tri, start_of(n_per[c]))
     # batch b takes the sheets whose cumulative cost falls in [b, b + 1) x CURVED_BATCH
@@ -159,10 +160,10 @@ def _curved_batches(index, spacing, sheets, n_per, start, by_chart) -> list[np.n
 # A patch whose alpha averages under this over its support (c_kk / A_k) is dropped: it hangs
 # almost wholly off its piece, and where its sliver of support lies other patches hold nearly all
 # the light. Its row and column of C are then nearly empty but for their neighbours' terms, and
-# the solve leaves its B free to ring: on the production room at 100 k patches (smooth beta) a
-# BoomBox patch resting on the floor, c_kk / A_k = 0.014 on 2.6 % of its disk, solved to B = 4.8
-# where its neighbours have ~0.01, and lit 8 vertices up to 1.05 where Cycles has 0; the patches
-# under 0.03 there (about 30 of 108 600, on the BoomBox and the bent tubes) held every |B| over 2
+# the solve leaves its B free to ring: on the production room at 100 k patches (smooth beta), kept,
+# a BoomBox patch resting on the floor, c_kk / A_k = 0.014 on 2.6 % of its disk, solves to B = 4.8
+# where its neighbours have ~0.01, and lights 8 vertices up to 1.05 where Cycles has 0; the patches
+# under 0.03 there (about 30 of 108 600, on the BoomBox and the bent tubes) hold every |B| over 2
 # but the lamp's.
 MIN_OWN_SHARE = 0.03
 
@@ -205,7 +206,7 @@ def build_atlas(
 class Built(NamedTuple):
     """What Generate makes: the atlas (as a file keeps it), its C (n x n, C[h, i] = c_ih), the
     quadrature C was integrated with (AtlasSettings.rule_order of the patches placed) and the
-    patches' contact flags it was integrated with (n,) (contact.contact_flags)."""
+    patches' contact flags it was integrated with (n,) (overlap.contacts.contact_flags)."""
 
     atlas: Atlas
     C: csr_matrix
@@ -282,12 +283,13 @@ def build_atlas_and_overlaps(
         triangle=surfaces.local_triangle[triangle],
         side=index.sheet_side[sheet].astype(np.int8),
     )
-    # Patches cut by contact lines (a partition standing on the floor): one per side (contact.py).
-    # split as stored: the split atlas's contacts, found while splitting (cached on the index), are
-    # then those of the atlas C is integrated on
-    atlas = split_at_contacts(atlas.as_stored(), index).as_stored()
+    # Patches cut by contact lines (a partition standing on the floor): one per side (overlap/contacts.py).
+    # split as stored: the split atlas's contacts, found while splitting, are then those of the atlas
+    # C is integrated on (as_stored keeps a stored atlas's values)
+    atlas, found = split_at_contacts(atlas.as_stored(), index)
+    atlas = atlas.as_stored()
     quadrature = settings.rule_order(len(atlas))
-    atlas, C, flags = integrate(atlas, index, quadrature, progress, 0.2)
+    atlas, C, flags = integrate(atlas, index, quadrature, progress, 0.2, found)
     return Built(atlas, C, quadrature, flags)
 
 
@@ -297,18 +299,24 @@ def integrate(
     quadrature: int,
     progress: StageCallback | None = None,
     start: float = 0.0,
+    found: Contacts | None = None,
 ) -> tuple[Atlas, csr_matrix, np.ndarray]:
     """An atlas's overlap matrix C and areas (support, effective c_kk, overlap counts), its
     patches without support dropped, and the contact flags C was integrated with (n,)
-    (contact.contact_flags): what Generate stores (build_atlas, and refine.py's children).
-    progress runs from `start` to 1."""
+    (overlap.contacts.contact_flags): what Generate stores (build_atlas, and generate/refine.py's children).
+    progress runs from `start` to 1. found: the atlas's contacts (split_at_contacts gives them); found
+    here when None."""
 
     n = len(atlas)
     report_stage(progress, start, f"integrating overlaps of {n} patches")
+    found = contacts(atlas, index) if found is None else found
+    rule = balls.ball_rule(atlas, index)
     C, support = overlap_matrix(
         atlas,
         index,
         quadrature,
+        found,
+        balls=rule,
         progress=lambda f: report_stage(progress, start + (1.0 - start) * f, "integrating overlaps"),
     )
     C = C.tocsr()
@@ -324,13 +332,13 @@ def integrate(
         near = np.zeros(len(atlas), bool)
         near[h[dropped[i]]] = True
         keep = np.flatnonzero(~dropped)
-        before, atlas = atlas, atlas.select(keep)
-        carry_over(before, index, keep, atlas)
+        atlas, found = atlas.select(keep), found.select(keep)
+        rule = balls.ball_rule(atlas, index, rule)
         C = C[keep][:, keep]
         support = support[keep]
         redo = np.flatnonzero(near[keep])
         if len(redo):
-            again, area = overlap_matrix(atlas, index, quadrature, rows=redo)
+            again, area = overlap_matrix(atlas, index, quadrature, found, rows=redo, balls=rule)
             C = (diags((~near[keep]).astype(float)) @ C + again).tocsr()
             support[redo] = area[redo]
         dropped = _to_drop(C, support)
@@ -338,6 +346,6 @@ def integrate(
     nz = (C + C.T).tocsr()
     nz.data[:] = 1
     counts = np.diff(nz.indptr) - (C.diagonal() > 0)
-    flags = contact_flags(contacts(atlas, index))  # found while integrating: cached on the index
+    flags = contact_flags(found)
     atlas = replace(atlas, support_area=support, effective_area=C.diagonal().copy(), overlap_count=counts)
     return atlas, C, flags

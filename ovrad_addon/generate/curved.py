@@ -10,6 +10,8 @@ from ..geometry import tangent_frame, unique_rows
 from ..scene.surfaces import triangle_geometry
 from .planar import Placed
 
+SAMPLE_SPLIT = 6.0  # a curved sheet is sampled at its spacing / SAMPLE_SPLIT (build.py counts alike)
+
 
 def sample_counts(areas: np.ndarray, gap: np.ndarray) -> np.ndarray:
     """Random samples sample_sheets draws on triangles of these areas at these gaps: one per gap^2,
@@ -123,7 +125,7 @@ def place_curved_many(
     """
     S = len(spacing)
     spacing = np.asarray(spacing, np.float64)
-    gap = spacing / 6.0
+    gap = spacing / SAMPLE_SPLIT
     pts, tri, ps, random = sample_sheets(corners, sheet, gap, np.asarray(seeds))
     begin = np.searchsorted(ps, np.arange(S))  # each sheet's first sample
     nrm = tri_normals[tri]

@@ -195,30 +195,38 @@ def place_planar_many(
         square = np.isin(cells, _border_cells(p2, owner, lo, h, ncell, eps, base))
     lo_c, hi_c, h_c, eps_c = lo[cell_sheet], hi[cell_sheet], h[cell_sheet], eps[cell_sheet]
     centre2 = lo_c + (np.stack([cx, cy], 1) + 0.5) * h_c
-    half_diag = 0.5 * np.hypot(h_c[:, 0], h_c[:, 1])
-    half_side = 0.5 * h_c.max(axis=1)
+    frame = (origin[cell_sheet], t1[cell_sheet], t2[cell_sheet], n[cell_sheet])
+    placed = _cell_patches(lo_c, hi_c, h_c, centre2, square, overlap, eps_c[:, None], frame, extent, cell_tri)
+    return placed, k_per
+
+
+def _cell_patches(lo, hi, h, centre2, square, overlap, eps, frame, extent, triangle) -> Placed:
+    """One patch per grid cell (m,): a disk circumscribing the cell, or where `square` a square
+    equal to it, grown by `overlap`. lo, hi (m, 2): the rectangle of the cell's sheet in its plane,
+    h (m, 2) the cell's sides, centre2 (m, 2) its centre there; frame: (origin, t1, t2, n) per cell,
+    the plane's origin, axes and normal; triangle (m,) a triangle under each patch."""
+    half_diag = 0.5 * np.hypot(h[:, 0], h[:, 1])
+    half_side = 0.5 * h.max(axis=1)
     radii = overlap * np.where(square, half_side, half_diag)
     # Pull patches that stick out of the sheet's bounding rectangle back inside, as far as
     # keeps their own cell covered: on rectangular sheets no support is then clipped, so the
     # integration rule needs no refinement at the borders.
     slack = np.where(square, radii - half_side, (radii - half_diag) / np.sqrt(2.0))[:, None]
     reach = radii[:, None]
-    low = np.maximum(lo_c + reach, centre2 - slack)
-    high = np.minimum(hi_c - reach, centre2 + slack)
-    e = eps_c[:, None]
-    centre2 = np.where(low <= high + e, np.minimum(np.maximum(centre2, low), high + e), centre2)
-    centers = origin[cell_sheet] + centre2[:, :1] * t1[cell_sheet] + centre2[:, 1:] * t2[cell_sheet]
-    placed = Placed(
-        centers=centers,
-        normals=n[cell_sheet],
-        tangents=t1[cell_sheet],
+    low = np.maximum(lo + reach, centre2 - slack)
+    high = np.minimum(hi - reach, centre2 + slack)
+    centre2 = np.where(low <= high + eps, np.minimum(np.maximum(centre2, low), high + eps), centre2)
+    origin, t1, t2, n = frame
+    return Placed(
+        centers=origin + centre2[:, :1] * t1 + centre2[:, 1:] * t2,
+        normals=n,
+        tangents=t1,
         radii=radii,
         shapes=np.where(square, SHAPE_SQUARE, SHAPE_DISK).astype(np.int8),
         thickness=1e-3 * radii + 1e-6 * extent,
-        min_cos=np.full(len(cells), 0.9),
-        triangle=cell_tri,
+        min_cos=np.full(len(radii), 0.9),
+        triangle=triangle,
     )
-    return placed, k_per
 
 
 def _border_cells(p2, owner, lo, h, ncell, eps, base) -> np.ndarray:
@@ -318,25 +326,6 @@ def place_planar_small(
     lo, hi, h = lo[keep], hi[keep], h[keep]
     k = len(keep)
     square = np.full(k, shapes != "DISKS")  # a planar sheet always has border edges in its one cell
-    half_diag = 0.5 * np.hypot(h[:, 0], h[:, 1])
-    half_side = 0.5 * h.max(axis=1)
-    radii = overlap * np.where(square, half_side, half_diag)
-    centre2 = lo + 0.5 * h
-    slack = np.where(square, radii - 0.5 * h.max(axis=1), (radii - half_diag) / np.sqrt(2.0))[:, None]
-    reach = radii[:, None]
-    lo_c = np.maximum(lo + reach, centre2 - slack)
-    hi_c = np.minimum(hi - reach, centre2 + slack)
-    e = eps
-    centre2 = np.where(lo_c <= hi_c + e, np.minimum(np.maximum(centre2, lo_c), hi_c + e), centre2)
-    centers = origin[keep] + centre2[:, :1] * t1[keep] + centre2[:, 1:] * t2[keep]
-    placed = Placed(
-        centers=centers,
-        normals=n[keep],
-        tangents=t1[keep],
-        radii=radii,
-        shapes=np.where(square, SHAPE_SQUARE, SHAPE_DISK).astype(np.int8),
-        thickness=1e-3 * radii + 1e-6 * extent,
-        min_cos=np.full(k, 0.9),
-        triangle=tri_first[keep],
-    )
+    frame = (origin[keep], t1[keep], t2[keep], n[keep])
+    placed = _cell_patches(lo, hi, h, lo + 0.5 * h, square, overlap, eps, frame, extent, tri_first[keep])
     return done, keep, placed

@@ -15,7 +15,7 @@ the reciprocity of the transport hold as on any atlas.
   refinement.
 - Children lie on the parent's sheet (same plane, normal, triangle and side); those whose support
   holds none of the sheet (a border square's quadrant off the surface) get no area and are dropped.
-- A patch cut by a contact line was split into pieces with one anchor each (contact.py): the
+- A patch cut by a contact line was split into pieces with one anchor each (overlap/contacts.py): the
   pieces share one disk, so they are refined together, and the children are split again.
 - Where: the indicator of a patch is the largest relative difference between its radiosity and an
   overlapping neighbour's, |L_i - L_j| / ((L_i + L_j) / 2 + floor), L the luminance of B and the
@@ -153,8 +153,8 @@ def refine(
     atlas as solved (sheets attached to `index`), C its overlap matrix if at hand (else its
     neighbour pairs are searched); smallest: the least radius a refined patch may have (default
     MIN_SCALE x the median radius); only: (n,) bool, the patches that may be refined (default all).
-    The result has no areas yet: integrate C again (pipeline.prepare with drop_unsupported, or
-    atlas.finish_atlas) before solving; children without support are dropped there."""
+    The result has no areas yet: integrate C again (radiosity.problem.prepare with drop_unsupported, or
+    generate.build.integrate) before solving; children without support are dropped there."""
     n = len(atlas)
     if smallest is None:
         smallest = MIN_SCALE * float(np.median(atlas.radii)) * np.sqrt(2.0)
@@ -176,7 +176,7 @@ def refine(
     replaced = chosen[group]
     first = np.unique(group[replaced], return_index=True)[1]
     heads = np.flatnonzero(replaced)[first]
-    kids = split_at_contacts(children(atlas, heads), index)
+    kids = split_at_contacts(children(atlas, heads), index)[0]
     kept = atlas.select(~replaced)
     out = Atlas.concatenate([kept, kids])
     return out, int(replaced.sum())

@@ -3,7 +3,7 @@
 The solver's first shot projects direct light onto the patches, which blurs it to their size:
 a shadow edge or the fast fall-off under a lamp cannot be sharper than a patch. A bake point
 (vertex, texel) instead gets its direct light computed where it is, and only the indirect part,
-which varies slowly, comes from the patches (pipeline.radiance_at). This is the same split as
+which varies slowly, comes from the patches (bake.points.radiance_at). This is the same split as
 "direct + indirect from a radiosity mesh" in classical light baking.
 
 Emitters are integrated with one fixed rule of points on their triangles (emitter_samples),
@@ -13,7 +13,6 @@ from both sides of a face (as in Cycles), so both sides count.
 
 from __future__ import annotations
 
-import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,11 +30,11 @@ _CHUNK_RAYS = 1 << 20
 class DirectLight:
     """The light shot straight to bake points: lamps, the emitting triangles sampled with shadow
     rays (emitters (T,) bool over surfaces.triangles), their emission scale, samples per point;
-    gather_rays: final-gather rays per bake point for the indirect light (gather.py), 0 = off;
-    near_field: hits closer than a patch radius computed where they land (gather.NearField);
-    sky: the world's light (sky.py), None = none; sky_samples: its directions (one fixed set);
+    gather_rays: final-gather rays per bake point for the indirect light (bake/gather.py), 0 = off;
+    near_field: hits closer than a patch radius computed where they land (bake.lattice.NearField);
+    sky: the world's light (light/sky.py), None = none; sky_samples: its directions (one fixed set);
     sky_patches (n,) bool: the patches where bake points and near gather hits cast sky rays, as
-    the solve decided and stored them (pipeline.bake_sky); None: decide from the problem."""
+    the solve decided and stored them (radiosity.emission.bake_sky); None: decide from the problem."""
 
     lamps: tuple[Lamp, ...] = ()
     emitters: np.ndarray | None = None
@@ -47,7 +46,8 @@ class DirectLight:
     sky_samples: int = 1024
     sky_patches: np.ndarray | None = None
     emitter_samples: int = 0  # the emitters' samples per point when not `samples` (0: samples)
-    area_jittered: bool = False  # area lamps: each stratum jittered per point (lights.jittered_area_samples)
+    # area lamps: each stratum jittered per point (light.lamps.jittered_area_samples)
+    area_jittered: bool = False
 
 
 def triangle_normals(surfaces: Surfaces, triangles: np.ndarray) -> np.ndarray:
@@ -56,7 +56,7 @@ def triangle_normals(surfaces: Surfaces, triangles: np.ndarray) -> np.ndarray:
 
 
 def emitter_irradiance(
-    surfaces: Surfaces,
+    source: Surfaces | EmitterRules,
     rays,
     emitters: np.ndarray,
     points: np.ndarray,
@@ -66,11 +66,14 @@ def emitter_irradiance(
 ) -> tuple[np.ndarray, int]:
     """Irradiance (m, 3) at points with unit normals (m, 3) from the emitting triangles `emitters`
     ((T,) bool), over a fixed rule of about `samples` emitter points with a shadow ray each; and
-    the number of rays cast. Deterministic."""
+    the number of rays cast. Deterministic. source: the surfaces, or the EmitterRules that keep
+    their rules."""
     pts = np.asarray(points, np.float64).reshape(-1, 3)
     nrm = np.asarray(normals, np.float64).reshape(-1, 3)
     H = np.zeros((len(pts), 3))
-    src, near = _emitter_rule(surfaces, emitters, samples, scale)
+    rules = rules_of(source)
+    surfaces = rules.surfaces
+    src, near = rules.rule(emitters, samples, scale)
     k = len(src.area)
     if len(pts) == 0 or k == 0:
         return H, 0
@@ -129,37 +132,39 @@ def _near_emitters(H, rs, P, N, src: EmitterSamples, d, g, pair, lit) -> None:
     np.add.at(H, rs[i], (exact * seen_fraction - sampled)[:, None] * src.triangle_radiance[tri[e]])
 
 
-_RULES: dict = {}  # (id(surfaces), id(emitters), samples, scale) -> (weakrefs of both, rule, light tree)
+class EmitterRules:
+    """The emitters' fixed rules of one Surfaces: emitter_samples() and its LightTree (None unless
+    samples are picked), made once per (emitters, samples, scale) for whoever keeps this object (a
+    problem keeps one for its solve and bakes: a final gather asks for them at every chunk of its
+    near hits, 408 times in the production room's vertex bake)."""
+
+    def __init__(self, surfaces: Surfaces):
+        self.surfaces = surfaces
+        self._made: dict = {}
+
+    def rule(self, emitters, samples: int, scale: float) -> tuple[EmitterSamples, LightTree | None]:
+        flags = np.asarray(emitters, bool)
+        key = (len(flags), np.packbits(flags).tobytes(), int(samples), float(scale))
+        if key not in self._made:
+            src = emitter_samples(self.surfaces, flags, samples, scale)
+            self._made[key] = (src, LightTree(src) if src.pick is not None and len(src.area) else None)
+        return self._made[key]
 
 
-def _emitter_rule(surfaces: Surfaces, emitters: np.ndarray, samples: int, scale: float):
-    """emitter_samples() and its LightTree (None unless samples are picked), made once for the
-    same surfaces and emitters objects: a final gather asks for them at every chunk of its near hits
-    (408 times in the production room's vertex bake). Weak references: nothing is kept alive."""
-    key = (id(surfaces), id(emitters), int(samples), float(scale))
-    hit = _RULES.get(key)
-    if hit is not None and hit[0]() is surfaces and hit[1]() is emitters:
-        return hit[2], hit[3]
-    src = emitter_samples(surfaces, emitters, samples, scale)
-    near = LightTree(src) if src.pick is not None and len(src.area) else None
-    for old in [k for k, v in _RULES.items() if v[0]() is None or v[1]() is None]:
-        _RULES.pop(old, None)
-    try:
-        _RULES[key] = (weakref.ref(surfaces), weakref.ref(emitters), src, near)
-    except TypeError:  # an object without weak references: not cached
-        pass
-    return src, near
+def rules_of(source: Surfaces | EmitterRules) -> EmitterRules:
+    """The emitter rules to use: those given, or a new set for plain surfaces (kept by no one)."""
+    return source if isinstance(source, EmitterRules) else EmitterRules(source)
 
 
-def picked(surfaces: Surfaces, emitters: np.ndarray, samples: int, scale: float = 1.0) -> bool:
+def picked(source: Surfaces | EmitterRules, emitters: np.ndarray, samples: int, scale: float = 1.0) -> bool:
     """Whether `samples` emitter samples are picked on the power of more emitting triangles than
     samples (the light tree then takes the near field of every point within NEAR_EMITTER of their
     spacings: fewer samples spread them wider and widen that near field)."""
-    return _emitter_rule(surfaces, emitters, samples, scale)[0].pick is not None
+    return rules_of(source).rule(emitters, samples, scale)[0].pick is not None
 
 
 def direct_irradiance(
-    surfaces: Surfaces,
+    source: Surfaces | EmitterRules,
     rays,
     light: DirectLight,
     points: np.ndarray,
@@ -168,7 +173,10 @@ def direct_irradiance(
 ) -> tuple[np.ndarray, int]:
     """Direct irradiance (m, 3) in W/m^2 at points with unit normals: lamps, the sampled
     emitters and the sky of `light`; and the rays cast. sky_at (m,) bool: the points that may see
-    the sky (the others get none of it, and cast no sky rays); None: all."""
+    the sky (the others get none of it, and cast no sky rays); None: all. source: the surfaces, or
+    the EmitterRules that keep their emitters' rules (a problem's: Problem.emitter_rules)."""
+    rules = rules_of(source)
+    surfaces = rules.surfaces
     pts = np.asarray(points, np.float64).reshape(-1, 3)
     nrm = np.asarray(normals, np.float64).reshape(-1, 3)
     H = np.zeros((len(pts), 3))
@@ -183,7 +191,7 @@ def direct_irradiance(
             cast += n
     if light.emitters is not None and np.any(light.emitters):
         samples = light.emitter_samples or light.samples
-        h, n = emitter_irradiance(surfaces, rays, light.emitters, pts, nrm, samples, light.emission_scale)
+        h, n = emitter_irradiance(rules, rays, light.emitters, pts, nrm, samples, light.emission_scale)
         H += h
         cast += n
     if light.sky is not None and light.sky.emits:

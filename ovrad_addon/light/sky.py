@@ -161,7 +161,9 @@ def sky_irradiance(
     step = max(1, _CHUNK_RAYS // len(dirs))
     for c0 in range(0, len(pts), step):
         rs = np.arange(c0, min(len(pts), c0 + step))
-        cos = nrm[rs] @ dirs.T  # (r, k)
+        # (r, k) elementwise, not a matrix product: a BLAS product's rounding may depend on a
+        # row's place in the block, so a point's cosines would depend on the points around it
+        cos = nrm[rs, 0:1] * dirs[:, 0] + nrm[rs, 1:2] * dirs[:, 1] + nrm[rs, 2:3] * dirs[:, 2]
         r_i, k_i = np.nonzero(cos > 0)
         if len(r_i) == 0:
             continue
@@ -172,5 +174,8 @@ def sky_irradiance(
         cast += len(r_i)
         seen = np.zeros(cos.shape)  # cos where the direction is open, as a dense (points, directions) matrix
         seen[r_i[~blocked], k_i[~blocked]] = cos[r_i[~blocked], k_i[~blocked]]
-        H[rs] += seen @ weights
+        # a running sum over the directions adds each point's terms in one order whatever points
+        # share its chunk (a matrix product or a sum over a 3-d axis may not), so a point gets the
+        # same bits with a mask of points or without (direct_irradiance's sky_at), on every CPU
+        H[rs] += np.cumsum(seen[:, None, :] * weights.T, axis=2)[:, :, -1]
     return H, cast

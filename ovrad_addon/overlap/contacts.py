@@ -12,9 +12,9 @@ point of its support) along the sheet: the segment between the two, lifted a hai
 (LIFT of the radius), hits nothing. At Generate a patch that a contact line cuts is split into one
 patch per part it can see (split_at_contacts: same disk or square, one anchor in each part), so the
 parts on both sides of the line stay covered; the anchors are stored with the atlas. Only cut
-patches pay for rays. A point no patch sees (a sliver) keeps the plain membership, so alpha still
-sums to one wherever it did before. Closed objects' footprints are removed before this
-(overlap.buried); curved sheets and clutter balls are left as they are.
+patches pay for rays. A point no patch sees (a sliver) keeps the plain membership, so alpha
+sums to one everywhere. Closed objects' footprints are removed before the contacts are found
+(atlas.index.buried); curved sheets and clutter balls are left as they are.
 
 The outline of a cover is a contact line too (covered()): geometry hung closer over the sheet than
 half a patch radius (a lamp panel 1 cm under a ceiling, a picture off a wall, a board low over a
@@ -26,7 +26,7 @@ patches, 7 % with covers.
 
 from __future__ import annotations
 
-from dataclasses import fields, replace
+from dataclasses import replace
 
 import numpy as np
 
@@ -39,19 +39,14 @@ LEAST_PIECE = 0.05  # ... each holding at least this share of its area
 
 CHUNK = 8192  # patches whose rule points contacts() holds at once
 
-
-def _key(atlas) -> tuple:
-    def h(a):
-        return None if a is None else hash(np.ascontiguousarray(a).tobytes())
-
-    return ("contacts", h(atlas.centers), h(atlas.radii), h(atlas.sheet), h(atlas.anchor))
+COARSE_Q, COARSE_RINGS = 4, 2  # the coarse rule that finds contacts (and locates a patch's sheet)
 
 
 def coarse_rule(atlas, index, ids):
     """The on-sheet points of a coarse rule of patches ids, without the contact rule: (owner position
     in ids, points, weights, triangles), and whether each patch had all its rule points on (len(ids),)."""
 
-    quad = patch_quadrature(atlas, index, ids, 4, rings=2, visibility=None)
+    quad = patch_quadrature(atlas, index, ids, COARSE_Q, rings=COARSE_RINGS, visibility=None)
     on = np.flatnonzero(quad.weights > 0)
     whole = np.bincount(quad.owner, weights=quad.weights <= 0, minlength=len(ids)) == 0
     return quad.owner[on], quad.points[on], quad.weights[on], quad.triangle[on], whole
@@ -76,18 +71,10 @@ def _nearest(atlas, ids, owner, points, among) -> np.ndarray:
 
 
 def contacts(atlas, index) -> Contacts:
-    """The anchors and cut flags of an atlas on an index (cached on the index): the stored anchor,
-    else the on-sheet rule point nearest the centre; cut where a rule point is hidden from it."""
-    # alpha_at asks on every call (each transport and gather chunk): the same atlas object answers
-    # without hashing its arrays again; an equal atlas in another object is found by its content
-    same = index.cache.get(("contacts of", id(atlas)))
-    if same is not None and same[0] is atlas:
-        return same[1]
-    key = _key(atlas)
-    hit = index.cache.get(key)
-    if hit is not None:
-        index.cache[("contacts of", id(atlas))] = (atlas, hit)
-        return hit
+    """The anchors and cut flags of an atlas on an index: the stored anchor, else the on-sheet rule
+    point nearest the centre; cut where a rule point is hidden from it. Found once where the work is
+    prepared (radiosity.problem.prepare, generate.build.integrate) and passed on as a value: 100 k
+    patches take about 5 s."""
     n = len(atlas)
     lift = lift_of(atlas, index)
     anchor = atlas.centers.copy() if atlas.anchor is None else np.asarray(atlas.anchor, np.float64).copy()
@@ -108,13 +95,10 @@ def contacts(atlas, index) -> Contacts:
         seen = _sees(atlas, index, ids, owner, anchor[ids], under[ids], points, points_under, lift)
         cut[ids] = np.bincount(owner, weights=~seen, minlength=len(ids)) > 0
     anchor = np.where(np.isfinite(anchor), anchor, atlas.centers)
-    out = Contacts(anchor, lift, cut, whole, under)
-    index.cache[key] = out
-    index.cache[("contacts of", id(atlas))] = (atlas, out)
-    return out
+    return Contacts(anchor, lift, cut, whole, under)
 
 
-# Bits of contact_flags(): what a file keeps of a patch's contacts beside its kept C (kept_overlaps.py)
+# Bits of contact_flags(): what a file keeps of a patch's contacts beside its kept C (overlap/kept.py)
 CUT, WHOLE, COVERED = 1, 2, 4
 
 
@@ -123,17 +107,17 @@ def contact_flags(c: Contacts) -> np.ndarray:
     return (c.cut * CUT | c.whole * WHOLE | c.covered * COVERED).astype(np.int32)
 
 
-def seed_contacts(atlas, index, flags: np.ndarray, known: np.ndarray) -> bool:
-    """Cache for `atlas` on `index` the contacts that `flags` (n,) (contact_flags) give for the patches
-    `known` (n,) bool, finding the other patches' with contacts() on them alone (a patch's contacts are
-    its own); the anchors are the atlas's. A solve whose kept C fits (kept_overlaps.fitting) takes the
+def seed_contacts(atlas, index, flags: np.ndarray, known: np.ndarray) -> Contacts | None:
+    """The contacts of `atlas` on `index` that `flags` (n,) (contact_flags) give for the patches
+    `known` (n,) bool, the other patches' found with contacts() on them alone (a patch's contacts are
+    its own); the anchors are the atlas's. A solve whose kept C fits (overlap.kept.fitting) takes the
     contacts that C was integrated with instead of finding them again (100 k patches: about 5 s).
-    Returns False, caching nothing, where the atlas has no anchors or a known one is not finite."""
+    None where the atlas has no anchors or a known one is not finite."""
     if atlas.anchor is None or not known.any():
-        return False
+        return None
     anchor = np.asarray(atlas.anchor, np.float64)
     if not np.all(np.isfinite(anchor[known])):
-        return False
+        return None
     flags = np.asarray(flags, np.int64)
     cut, whole, covered = ((flags & bit) != 0 for bit in (CUT, WHOLE, COVERED))
     anchor = anchor.copy()
@@ -142,21 +126,12 @@ def seed_contacts(atlas, index, flags: np.ndarray, known: np.ndarray) -> bool:
         found = contacts(atlas.select(rest), index)
         anchor[rest], cut[rest] = found.anchor, found.cut
         whole[rest], covered[rest] = found.whole, found.covered
-    out = Contacts(anchor, lift_of(atlas, index), cut, whole, covered)
-    index.cache[_key(atlas)] = out
-    index.cache[("contacts of", id(atlas))] = (atlas, out)
-    return True
+    return Contacts(anchor, lift_of(atlas, index), cut, whole, covered)
 
 
-def carry_over(atlas, index, keep: np.ndarray, selected) -> None:
-    """Cache for `selected` (atlas.select(keep)) the contacts cached for `atlas`: a patch's anchor,
-    lift and cut are its own, so they are the ones contacts() would find again."""
-    c = index.cache.get(_key(atlas))
-    if c is not None:
-        index.cache[_key(selected)] = Contacts(*(getattr(c, f.name)[keep] for f in fields(Contacts)))
-
-
-def split_at_contacts(atlas, index, pieces: int = MAX_PIECES, least: float = LEAST_PIECE):
+def split_at_contacts(
+    atlas, index, pieces: int = MAX_PIECES, least: float = LEAST_PIECE
+) -> tuple[object, Contacts]:
     """The atlas with each patch a contact line cuts split into one patch per part it can see.
 
     A patch's coarse rule points are taken in turn from the centre outwards: the nearest one not
@@ -166,7 +141,7 @@ def split_at_contacts(atlas, index, pieces: int = MAX_PIECES, least: float = LEA
     that large keeps its largest. Every patch gets its anchor stored (Atlas.anchor), so Solve
     sees the same supports. Anchors are rounded to float32 as a file keeps them, and the split
     atlas's contacts (what contacts() would find for it: the same rule points, seen from the same
-    anchors) are cached on the index, so integrating its C does not find them again.
+    anchors) come with it, (split atlas, its Contacts), so integrating its C does not find them again.
     """
     n = len(atlas)
     ids = planar_patches(atlas, index)
@@ -194,8 +169,7 @@ def split_at_contacts(atlas, index, pieces: int = MAX_PIECES, least: float = LEA
         stored[has] = index.surfaces.local_triangle[tri[has]]
     out = replace(out, anchor=np.concatenate(anchors)[order], triangle=stored)
     flags = (np.concatenate(x)[order] for x in (cuts, wholes, covers))
-    index.cache[_key(out)] = Contacts(out.anchor, lift_of(out, index), *flags)
-    return out
+    return out, Contacts(out.anchor, lift_of(out, index), *flags)
 
 
 def _sees(atlas, index, ids, owner, anchor, over, points, under, lift) -> np.ndarray:
@@ -264,14 +238,17 @@ def _parts(atlas, index, ids, lift, pieces: int, least: float):
     return out
 
 
-def seen_members(atlas, index, rows: np.ndarray, cols: np.ndarray, points: np.ndarray, member: np.ndarray):
-    """Membership of (row point, col patch) pairs with the hidden pairs of cut patches removed;
-    a point that would be left in no patch keeps its plain membership. points (m, 3) per pair."""
+def seen_members(
+    atlas, index, found: Contacts, rows: np.ndarray, cols: np.ndarray, points: np.ndarray, member: np.ndarray
+):
+    """Membership of (row point, col patch) pairs with the hidden pairs of cut patches removed (found:
+    the atlas's contacts); a point that would be left in no patch keeps its plain membership. points
+    (m, 3) per pair."""
     check = np.flatnonzero(member)
     if len(check) == 0:
         return member
     seen = member.copy()
-    seen[check] = visible(contacts(atlas, index), atlas, index, cols[check], np.take(points, check, axis=0))
+    seen[check] = visible(found, atlas, index, cols[check], np.take(points, check, axis=0))
     m = int(rows.max()) + 1
     lost = (np.bincount(rows[member], minlength=m) > 0) & ~(np.bincount(rows[seen], minlength=m) > 0)
     return np.where(lost[rows], member, seen)

@@ -3,7 +3,7 @@ uses it instead of integrating it again.
 
 C is block diagonal over atlas objects (patches overlap only on their own sheet, and a sheet lies on
 one object), and a patch's row of C depends on that patch and its sheet's patches around it only
-(overlap.overlap_matrix), so each atlas object keeps its own block: its off-diagonal entries on mesh
+(overlap.matrix.overlap_matrix), so each atlas object keeps its own block: its off-diagonal entries on mesh
 edges between overlapping patches, (C[i, j], C[j, i]) for the edge (i, j), i < j (C[h, k] = c_kh, the
 integral of alpha_k over D_h: C is not symmetric), and its diagonal c_kk as the patches' effective
 areas. Values are float32, as every attribute: the solve moves by about
@@ -19,7 +19,7 @@ The quadrature is the block's own (KeptOverlaps.quadrature, kept beside the key;
 it by the atlas's size, AtlasSettings.rule_order): the key is checked with the rule the block was
 integrated with.
 
-A block also keeps its patches' contact flags (contact.contact_flags: cut, whole, covered; the
+A block also keeps its patches' contact flags (overlap.contacts.contact_flags: cut, whole, covered; the
 anchors are the atlas's own), under its key: a solve whose block fits takes the contacts C was
 integrated with instead of finding them again (100 k patches: about 5 s), and so does a bake of the
 reopened file. Blocks kept before the flags were have keys made without them and still fit; their
@@ -38,9 +38,10 @@ from ..digest import add_array, hasher
 from ..scene.surfaces import Surfaces
 from ..settings import FINE_QUADRATURE, AtlasSettings
 
-# Raise when overlap.py integrates C differently (its rule, membership, contacts, clutter samples):
-# a C kept by an earlier version is then integrated again instead of used.
-# 2: rows of repeated neighbourhoods copied (overlap.repeated_rows); 3: border crossings (support_cuts)
+# Raise when the overlap package integrates C differently (its rule, membership, contacts, clutter
+# samples): a C kept in a file with another RULE_VERSION is then integrated again instead of used.
+# 2: rows of repeated neighbourhoods copied (overlap.matrix.repeated_rows); 3: border crossings
+# (overlap.cuts.support_cuts)
 RULE_VERSION = 3
 
 
@@ -50,7 +51,7 @@ class KeptOverlaps:
     file keeps it: edges (m, 2) int32 patch pairs i < j within the block, values (m, 2) float32
     (C[i, j], C[j, i]), diagonal (count,) float32 c_kk, key, the overlap_key() it was stored with,
     and quadrature, the rule it was integrated with (blocks kept before it was stored: 12); contacts
-    (count,) int32, the patches' contact flags C was integrated with (contact.contact_flags; None:
+    (count,) int32, the patches' contact flags C was integrated with (overlap.contacts.contact_flags; None:
     kept without them, found again by a solve)."""
 
     start: int
@@ -130,19 +131,7 @@ def overlap_key(
     h.update(b"".join(sorted(keys)))
     object_rank = np.array([rank[k] for k in keys], np.int64)
     add_array(h, object_rank[np.asarray(atlas.source_object, np.int64)])
-    for a in (
-        atlas.centers,
-        atlas.normals,
-        atlas.tangents,
-        atlas.radii,
-        atlas.shapes,
-        atlas.thickness,
-        atlas.min_cos,
-        atlas.random,
-        atlas.triangle,
-        atlas.side,
-        atlas.anchor,
-    ):
+    for a in (*atlas.placement, atlas.random, atlas.triangle, atlas.side, atlas.anchor):
         add_array(h, a)
     for a in (edges, values, diagonal):
         add_array(h, a)
@@ -162,7 +151,7 @@ def keep(
 ) -> KeptOverlaps:
     """The block C (len(atlas) square) of `atlas` (as stored, one atlas object's patches; start: the
     position of its first patch in the atlas a solve concatenates) ready to be kept, with its key;
-    contacts (len(atlas),): the patches' contact flags C was integrated with (contact.contact_flags).
+    contacts (len(atlas),): the patches' contact flags C was integrated with (overlap.contacts.contact_flags).
     surfaces: or their object_keys() (computed once for many blocks)."""
     edges, values, diagonal = kept_form(C)
     if contacts is not None:

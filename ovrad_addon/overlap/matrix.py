@@ -10,14 +10,15 @@ import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix
 from scipy.spatial import cKDTree
 
+from ..atlas.balls import BallRule, ball_rule
 from ..atlas.support import alpha_from_pairs, pair_beta
 from ..geometry import unique_rows
 from ..names import SHAPE_DISK, SHAPE_SQUARE
 from ..parallel import WORKERS, threaded
-from .contacts import contacts, seen_members
+from .contacts import seen_members
 from .cuts import CUT_SAMPLES
 from .quadrature import patch_quadrature
-from .sight import planar_patches
+from .sight import Contacts, planar_patches
 
 
 def neighbour_pairs(atlas) -> tuple[np.ndarray, np.ndarray]:
@@ -63,12 +64,14 @@ class RowCopies:
 KEY_SCALE = 1e6  # configurations equal to 1e-6 of the patch radius are one
 
 
-def repeated_rows(atlas, index, ph: np.ndarray, pi: np.ndarray, start: np.ndarray) -> list[RowCopies]:
+def repeated_rows(
+    atlas, index, con: Contacts, ph: np.ndarray, pi: np.ndarray, start: np.ndarray
+) -> list[RowCopies]:
     """Patches whose row of C is another's, found by their neighbourhoods.
 
     A row C[h, .] = the integrals over D_h of the alpha_i depends on nothing but the disks and
     squares around h when h's support is plain: a disk on a planar sheet, whole (every point of its
-    coarse rule on the sheet: no border, footprint or hole in it, contact.Contacts.whole), and no
+    coarse rule on the sheet: no border, footprint or hole in it, overlap.sight.Contacts.whole), and no
     contact line cutting it or any patch overlapping it (their memberships are then geometric).
     Two such patches whose neighbours sit at the same offsets in their planes (1e-6 of the radius),
     with the same radii, shapes and square orientations, have the same row up to the rotation of
@@ -76,10 +79,9 @@ def repeated_rows(atlas, index, ph: np.ndarray, pi: np.ndarray, start: np.ndarra
     repeat a few configurations: the Cornell box at 25 000 patches has 15 300 plain patches in 1 012
     configurations. Each configuration is integrated once per sheet, on the member with the
     smallest Atlas.random: the choice depends on neither the patches' order nor other sheets, so a
-    row stays a function of its own sheet's patches (kept_overlaps.py relies on it).
+    row stays a function of its own sheet's patches (overlap/kept.py relies on it).
     """
     n = len(atlas)
-    con = contacts(atlas, index)
     plain = np.zeros(n, bool)
     plain[planar_patches(atlas, index)] = True
     uncut = plain & ~con.cut & ~con.covered  # a covered patch's disk may reach past its cover
@@ -122,11 +124,13 @@ def overlap_matrix(
     atlas,
     index,
     q: int,
+    contacts: Contacts,
     progress: Callable[[float], None] | None = None,
     chunk_points: int = 1_000_000,
     workers: int = WORKERS,
     rows: np.ndarray | None = None,
     reuse: bool = True,
+    balls: BallRule | None = None,
 ) -> tuple[csr_matrix, np.ndarray]:
     """C (n x n sparse, C[h, i] = c_ih) and the support areas A_h (n,).
 
@@ -136,7 +140,9 @@ def overlap_matrix(
     rows: integrate these rows only (the others are empty, their support areas 0).
     Patches go in chunks of about chunk_points rule-point pairs, on `workers` threads
     (parallel.py): 2.0 s instead of 4.1 s for 6 400 patches on 2 cores.
-    reuse: a row that repeats another's configuration is copied from it (repeated_rows)."""
+    reuse: a row that repeats another's configuration is copied from it (repeated_rows).
+    contacts: the atlas's (overlap.contacts.contacts()); balls: its clutter samples
+    (atlas.balls.ball_rule; made here when None or not the atlas's)."""
     n = len(atlas)
     rows = np.arange(n) if rows is None else np.asarray(rows, np.int64)
     if len(rows) == 0:
@@ -149,7 +155,7 @@ def overlap_matrix(
     if reuse:
         asked = np.zeros(n, bool)
         asked[wanted] = True
-        for block in repeated_rows(atlas, index, ph, pi, start):
+        for block in repeated_rows(atlas, index, contacts, ph, pi, start):
             keep = asked[block.member]
             if np.any(keep):
                 copies.append(
@@ -163,9 +169,9 @@ def overlap_matrix(
     # rule points per patch grow with its neighbours (rim crossings), and each point is paired
     # with every neighbour of its chunk's widest patch: rows go by degree, in chunks whose pairs
     # stay within budget. (Sized by the atlas's widest patch, the production room's chunks at
-    # 100 k patches held 7 patches each: numpy's per-call cost then outweighed the work. By degree,
-    # counting rule points only, Generate's peak there was 3.6 GB; with support_cuts' samples
-    # counted too, 0.57 GB in the same 91 s.)
+    # 100 k patches would hold 7 patches each: numpy's per-call cost would outweigh the work. By
+    # degree, counting rule points only, Generate's peak there is 3.6 GB; with support_cuts'
+    # samples counted too, 0.57 GB in the same 91 s.)
     rows = rows[np.argsort(deg[rows], kind="stable")]
     # a patch's pairs: its rule points (and, if cut, up to 4q (CUT_SAMPLES q + 2) support_cuts samples)
     # times its neighbours
@@ -178,6 +184,7 @@ def overlap_matrix(
         fit = np.searchsorted(np.arange(1, span + 1) * cost[a : a + span], chunk_points, side="right")
         starts.append(a + max(1, int(fit)))
     bounds = list(zip(starts[:-1], starts[1:], strict=True))
+    balls = ball_rule(atlas, index, balls)
 
     def chunk(k: int):
         ids = rows[bounds[k][0] : bounds[k][1]]
@@ -186,7 +193,7 @@ def overlap_matrix(
         slot = np.arange(m)[None, :]
         nb = np.where(slot < (hi - lo)[:, None], pi[np.minimum(lo[:, None] + slot, len(pi) - 1)], -1)
         nb = np.where(nb == ids[:, None], -1, nb)
-        quad = patch_quadrature(atlas, index, ids, q, nb, visibility=contacts(atlas, index))
+        quad = patch_quadrature(atlas, index, ids, q, nb, visibility=contacts, balls=balls)
         area = np.bincount(quad.owner, weights=quad.weights, minlength=len(ids))
         # Pair every rule point with its own patch and the neighbours that may contain it.
         pt, slot = np.nonzero(quad.cand)
@@ -195,7 +202,7 @@ def overlap_matrix(
         sheets = np.where(quad.triangle >= 0, atlas.sheet[ids[quad.owner]], -1)
         at = np.take(quad.points, prow, axis=0)
         member, b = pair_beta(atlas, pcol, at, np.take(quad.normals, prow, axis=0), sheets[prow], atlas.beta)
-        member = seen_members(atlas, index, prow, pcol, at, member)
+        member = seen_members(atlas, index, contacts, prow, pcol, at, member)
         alpha = alpha_from_pairs(prow, pcol, member, b, (len(quad.owner), n)).tocoo()
         # Sum per (h, i) within the chunk: what is kept is then the size of C, not of the rule.
         part = (

@@ -13,7 +13,7 @@ from dataclasses import fields, replace
 
 import numpy as np
 
-from ..atlas.balls import ball_quadrature
+from ..atlas.balls import BallRule, ball_quadrature, ball_rule
 from ..names import SHAPE_BALL
 from .cuts import support_cuts, surface_rule
 from .rule import Quadrature
@@ -31,6 +31,7 @@ def patch_quadrature(
     rings: int | None = None,
     *,
     visibility: Contacts | None,
+    balls: BallRule | None = None,
 ) -> Quadrature:
     """Quadrature of the supports D_h for patches `ids`, on the surface, with area weights.
 
@@ -41,21 +42,27 @@ def patch_quadrature(
     with samples of the pieces they hold.
     visibility: the patches' contacts (overlap.contacts.contacts()); points a cut patch cannot see
     along its sheet are then outside it. None: no such test (the coarse rule that finds them).
+    balls: the atlas's clutter samples (atlas.balls.ball_rule), made here when ids hold a ball patch
+    and none is given: callers that integrate in many calls make it once and pass it.
     """
     if nb is None:
         nb = np.zeros((len(ids), 0), np.int64)
+    if balls is None and np.any(atlas.shapes[ids] == SHAPE_BALL):
+        balls = ball_rule(atlas, index)
     if len(ids) > QUADRATURE_CHUNK:
         # a patch's rule depends on itself and its neighbours only: in chunks, the temporaries of
         # every patch's rays and rule points are never held at once (100 k patches: 2.8 GB at once)
         parts = []
         for s in range(0, len(ids), QUADRATURE_CHUNK):
             sl = slice(s, s + QUADRATURE_CHUNK)
-            part = patch_quadrature(atlas, index, ids[sl], q, nb[sl], rings, visibility=visibility)
+            part = patch_quadrature(
+                atlas, index, ids[sl], q, nb[sl], rings, visibility=visibility, balls=balls
+            )
             parts.append(replace(part, owner=part.owner + s))
         return Quadrature(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(Quadrature)))
     ball = atlas.shapes[ids] == SHAPE_BALL
     if ball.any():
-        return _with_balls(atlas, index, ids, q, nb, rings, ball, visibility)
+        return _with_balls(atlas, index, ids, q, nb, rings, ball, visibility, balls)
     if rings is None:
         # coarse rings first. On each rule ray where a point fell off the support (a border, a
         # crease, a contact cuts the patch there), every change between on and off along the ray
@@ -90,17 +97,19 @@ def patch_quadrature(
     return surface_rule(atlas, index, ids, q, nb, rings, visibility)[0]
 
 
-def _with_balls(atlas, index, ids, q, nb, rings, ball, visibility) -> Quadrature:
+def _with_balls(atlas, index, ids, q, nb, rings, ball, visibility, balls: BallRule) -> Quadrature:
     """patch_quadrature of ids when some are ball patches: their rule from clutter samples (at
     most 8 q^2 points each), the others' as usual, in one Quadrature."""
 
     parts = []
     where = np.flatnonzero(ball)
-    owner, pts, nrm, w, tri = ball_quadrature(atlas, index, ids[where], 8 * q * q)
+    owner, pts, nrm, w, tri = ball_quadrature(atlas, ids[where], 8 * q * q, balls)
     cand = nb[where][owner] >= 0  # any same-sheet neighbour may hold a sample
     parts.append(Quadrature(where[owner], pts, nrm, w, tri, cand))
     rest = np.flatnonzero(~ball)
     if len(rest):
-        other = patch_quadrature(atlas, index, ids[rest], q, nb[rest], rings, visibility=visibility)
+        other = patch_quadrature(
+            atlas, index, ids[rest], q, nb[rest], rings, visibility=visibility, balls=balls
+        )
         parts.append(replace(other, owner=rest[other.owner]))
     return Quadrature(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(Quadrature)))

@@ -8,14 +8,17 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 from scipy.sparse import csr_matrix
 
+from ..atlas.balls import BallRule, ball_rule
 from ..atlas.support import alpha_from_pairs, pair_beta
-from .contacts import contacts, seen_members
+from .contacts import seen_members
 from .quadrature import patch_quadrature
 from .rule import Quadrature
+from .sight import Contacts
 
 
-def alpha_at(atlas, index, points: np.ndarray, triangle: np.ndarray, side) -> csr_matrix:
-    """alpha_i at surface points (m x n sparse): points (m, 3) on `triangle` (m,), seen from side (m,) +-1."""
+def alpha_at(atlas, index, contacts: Contacts, points: np.ndarray, triangle: np.ndarray, side) -> csr_matrix:
+    """alpha_i at surface points (m x n sparse): points (m, 3) on `triangle` (m,), seen from side (m,) +-1;
+    contacts: the atlas's (overlap.contacts.contacts(), Problem.contacts)."""
     pts = np.asarray(points, np.float64).reshape(-1, 3)
     tri = np.asarray(triangle, np.int64)
     side = np.broadcast_to(np.asarray(side), tri.shape)
@@ -24,7 +27,7 @@ def alpha_at(atlas, index, points: np.ndarray, triangle: np.ndarray, side) -> cs
     rows, cols = atlas.grid.candidates(pts, sheets)
     at = np.take(pts, rows, axis=0)
     member, b = pair_beta(atlas, cols, at, np.take(nrm, rows, axis=0), None, atlas.beta)
-    member = seen_members(atlas, index, rows, cols, at, member)
+    member = seen_members(atlas, index, contacts, rows, cols, at, member)
     return alpha_from_pairs(rows, cols, member, b, (len(pts), len(atlas)))
 
 
@@ -62,7 +65,15 @@ FINER_RINGS = 4  # rings grow this many times per pass for supports a coarse rul
 MAX_RINGS = 256
 
 
-def support_points(atlas, index, q: int, rings: int, ids: np.ndarray | None = None) -> Quadrature:
+def support_points(
+    atlas,
+    index,
+    contacts: Contacts,
+    q: int,
+    rings: int,
+    ids: np.ndarray | None = None,
+    balls: BallRule | None = None,
+) -> Quadrature:
     """A coarse rule (q, rings) on every patch's support, its points on the support only (weight
     > 0; owner: the patch; no neighbour slots). A patch much larger than its support (a disk on a
     leaf a fifth of its size, a square on a small cube's face) may have no coarse point on it: its
@@ -70,10 +81,11 @@ def support_points(atlas, index, q: int, rings: int, ids: np.ndarray | None = No
     Without points a patch got no transport receivers, so no light, and none of the per-patch
     means (emission, albedo): 1 365 of the production room's 9 478 patches at a target of 8 000
     had none, and its leaves baked 11 % too dark. ids: only these patches (owner still indexes the
-    atlas); all by default."""
+    atlas); all by default. contacts, balls: the atlas's (Problem.contacts, Problem.balls)."""
     ids = np.arange(len(atlas)) if ids is None else np.asarray(ids, np.int64)
-    seen = contacts(atlas, index)
-    first = _on_support(patch_quadrature(atlas, index, ids, q, rings=rings, visibility=seen))
+    if balls is None:
+        balls = ball_rule(atlas, index)
+    first = _on_support(patch_quadrature(atlas, index, ids, q, rings=rings, visibility=contacts, balls=balls))
     parts = [replace(first, owner=ids[first.owner])]
     missing = np.zeros(len(atlas), bool)
     missing[ids] = atlas.support_area[ids] > 0
@@ -81,7 +93,9 @@ def support_points(atlas, index, q: int, rings: int, ids: np.ndarray | None = No
     while np.any(missing) and rings < MAX_RINGS:
         rings *= FINER_RINGS
         where = np.flatnonzero(missing)
-        finer = _on_support(patch_quadrature(atlas, index, where, q, rings=rings, visibility=seen))
+        finer = _on_support(
+            patch_quadrature(atlas, index, where, q, rings=rings, visibility=contacts, balls=balls)
+        )
         parts.append(replace(finer, owner=where[finer.owner]))
         missing[where[finer.owner]] = False
     if len(parts) == 1:
@@ -98,7 +112,9 @@ def _on_support(quad: Quadrature) -> Quadrature:
     return Quadrature(**{name: arrays.pop(name)[on] for name in list(arrays)})
 
 
-def patch_average(atlas, index, per_triangle: np.ndarray, q: int = 4) -> np.ndarray:
+def patch_average(
+    atlas, index, contacts: Contacts, per_triangle: np.ndarray, q: int = 4, balls: BallRule | None = None
+) -> np.ndarray:
     """Area-weighted mean over each patch's support of a per-triangle quantity (T, c) -> (n, c).
 
     A support lies on its patch's sheet, so only patches of sheets with a nonzero triangle are
@@ -113,7 +129,7 @@ def patch_average(atlas, index, per_triangle: np.ndarray, q: int = 4) -> np.ndar
     ids = np.flatnonzero(np.isin(atlas.sheet, sheets[sheets >= 0]))
     if len(ids) == 0:
         return out
-    quad = support_points(atlas, index, q, max(q // 2, 1), ids)
+    quad = support_points(atlas, index, contacts, q, max(q // 2, 1), ids, balls)
     w = quad.weights
     np.add.at(out, quad.owner, vals[quad.triangle] * w[:, None])
     area = np.bincount(quad.owner, weights=w, minlength=len(atlas))

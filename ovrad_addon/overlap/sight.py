@@ -3,7 +3,7 @@ the tests they make, segments blocked along the sheet and covers over it (see co
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -29,10 +29,14 @@ class Contacts:
     whole: np.ndarray
     covered: np.ndarray
 
+    def select(self, keep) -> Contacts:
+        """The contacts of atlas.select(keep): a patch's anchor, lift and flags are its own."""
+        return Contacts(*(getattr(self, f.name)[keep] for f in fields(Contacts)))
+
 
 def planar_patches(atlas, index) -> np.ndarray:
     """Indices of the patches on planar sheets, not clutter balls: those the contact rule applies to
-    and refine.py may refine."""
+    and generate/refine.py may refine."""
     planar = index.planar[index.sheet_chart[atlas.sheet]] & ~index.sheet_clutter[atlas.sheet]
     return np.flatnonzero(planar & (atlas.shapes != SHAPE_BALL))
 

@@ -9,14 +9,14 @@ radiosity's link to a cluster (Hanrahan, Salzman, Aupperle 1991) on the ray-cast
 hit needs a cell key, not the alpha lookup (candidates, membership, beta, normalisation), and a
 row of G holds one entry per cluster it sees far away instead of one per patch.
 
-Cells are the sheets' own lookup grids (lookup.PatchGrid) coarsened by powers of two, from
+Cells are the sheets' own lookup grids (atlas.lookup.PatchGrid) coarsened by powers of two, from
 FIRST_LEVEL (cells about two patch radii wide) up to one cell per sheet, and split by the
 direction of the surface normal (NORMAL_BINS per cube face), so a cluster never mixes the two
 faces of a crease or both sides of a thin object, whose light differs and which rays see at
-different angles; and by cover (contact.covered): the ceiling over a lamp hung under it, ~30 times
-brighter than the ceiling beside it, is a cluster of its own, else every far ray landing next to
-the lamp brought back a share of the light trapped over it (the production room at 100 000
-patches, +7 % on its walls). Each hit takes the coarsest level that is far enough.
+different angles; and by cover (overlap.sight.Contacts.covered): the ceiling over a lamp hung
+under it, ~30 times brighter than the ceiling beside it, is a cluster of its own, else every far
+ray landing next to the lamp would bring back a share of the light trapped over it (the
+production room at 100 000 patches: +7 % on its walls). Each hit takes the coarsest level that is far enough.
 
 Energy is conserved exactly: every row of P sums to 1, so a row of G closes as with alpha (the
 furnace stays exact), and a uniform radiosity is reproduced exactly.
@@ -33,7 +33,7 @@ from ..atlas.lookup import PatchGrid
 from ..geometry import unique_rows
 from ..overlap.sight import COVER, geometry_over
 
-FIRST_LEVEL = 2  # 4 lookup cells: about two patch radii (lookup.CELLS_PER_RADIUS)
+FIRST_LEVEL = 2  # 4 lookup cells: about two patch radii (atlas.lookup.CELLS_PER_RADIUS)
 
 NORMAL_BINS = 3  # per cube face: normals within one cluster differ by at most ~40 degrees
 
@@ -59,7 +59,7 @@ BINS = 6 * NORMAL_BINS * NORMAL_BINS
 
 @dataclass(frozen=True)
 class Clusters:
-    """grid: the patch lookup's (lookup.PatchGrid), whose cells are the finest level; top (S,)
+    """grid: the patch lookup's (atlas.lookup.PatchGrid), whose cells are the finest level; top (S,)
     the level at which a sheet is one cell; keys[l] the sorted cell keys of level FIRST_LEVEL + l
     that hold surface, first (levels + 1,) their column offsets; push (clusters x n, csc) the
     mean-radiosity weights P; far the link criterion (cell diagonal over distance)."""
@@ -74,9 +74,9 @@ class Clusters:
 
     @classmethod
     def build(cls, atlas, points, far: float, covered: np.ndarray | None = None) -> Clusters:
-        """Clusters over an atlas from its receiver points (transport.ReceiverPoints: owner,
+        """Clusters over an atlas from its receiver points (radiosity.transport.ReceiverPoints: owner,
         points, normals on the patch's side, area weights summing to each support area);
-        covered (n,) bool: the patches under a cover (contact.Contacts.covered), clustered apart.
+        covered (n,) bool: the patches under a cover (overlap.sight.Contacts.covered), clustered apart.
 
         P[c, k] is c_kk (alpha_k's integral, the atlas's effective area) times the share of D_k's
         area that lies in cell c, normalised so each row sums to 1."""
@@ -208,7 +208,7 @@ def pooled_fraction(atlas, escaped: np.ndarray, cast: np.ndarray, want: int) -> 
 
     At 100 000 patches each casts some 70 transport rays: too few to tell whether it sees the
     sky, and a test of SKY_TEST_RAYS rays from each would cost more than the transport
-    (transport._sky_test). Its neighbours facing the same way share most of its view; a patch
+    (radiosity.transport._sky_test). Its neighbours facing the same way share most of its view; a patch
     none of whose cell's `want` rays escaped sees, on the cell's average, under about 1 / want of
     sky. A patch whose own rays escaped is in a cell whose did: it keeps the sky. The grid is the
     scene's, not each sheet's: clutter of many small pieces (a sheet each) casts too few rays per

@@ -19,17 +19,24 @@ def patch_emission(problem: Problem, emission_scale: float = 1.0) -> np.ndarray:
         lambda: (
             np.pi
             * emission_scale
-            * patch_average(problem.atlas, problem.index, problem.surfaces.emission, GATHER_Q)
+            * patch_average(
+                problem.atlas,
+                problem.index,
+                problem.contacts,
+                problem.surfaces.emission,
+                GATHER_Q,
+                problem.balls,
+            )
         ),
     )
 
 
 def own_emission(problem: Problem, emitters, emission_scale: float = 1.0) -> np.ndarray:
-    """gather.sampled_emission of the problem's patches (read-only): their exitance from the
+    """sampled_emission of the problem's patches (read-only): their exitance from the
     emitting triangles that bake points light themselves with."""
     flags = None if emitters is None else np.asarray(emitters, bool)
     key = ("own", float(emission_scale), None if flags is None else hash(np.packbits(flags).tobytes()))
-    return problem.cached(key, lambda: sampled_emission(problem.atlas, problem.index, flags, emission_scale))
+    return problem.cached(key, lambda: sampled_emission(problem, flags, emission_scale))
 
 
 def sampled_emitters(problem: Problem, emission_scale: float = 1.0) -> np.ndarray:
@@ -116,11 +123,13 @@ def bake_sky(problem: Problem, light: DirectLight, radiosity: np.ndarray) -> np.
     return sky_patches(problem, light, radiosity - patch_emission(problem, light.emission_scale))
 
 
-def sampled_emission(atlas, index, emitters: np.ndarray | None, scale: float = 1.0, q: int = 4) -> np.ndarray:
+def sampled_emission(
+    problem: Problem, emitters: np.ndarray | None, scale: float = 1.0, q: int = 4
+) -> np.ndarray:
     """(n, 3) exitance of each patch from the emitting triangles `emitters` ((T,) bool) only: the
     emission a bake point computes as direct light, which a gather must not count again."""
-    surfaces = index.surfaces
+    atlas, index = problem.atlas, problem.index
     if emitters is None or not np.any(emitters) or scale == 0:
         return np.zeros((len(atlas), 3))
-    em = surfaces.emission * np.asarray(emitters, bool)[:, None]
-    return np.pi * scale * patch_average(atlas, index, em, q)
+    em = index.surfaces.emission * np.asarray(emitters, bool)[:, None]
+    return np.pi * scale * patch_average(atlas, index, problem.contacts, em, q, problem.balls)

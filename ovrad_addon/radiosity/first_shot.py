@@ -1,5 +1,5 @@
 """The solve: the light shot first to the receiver points by shadow rays (lamps, picked emitters,
-the sky) within the ray budget, then progressive shooting of (C - R) B = C E (solver.py)."""
+the sky) within the ray budget, then progressive shooting of (C - R) B = C E (radiosity/solver.py)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 from scipy.sparse import csc_matrix, diags, spmatrix
 
 from ..errors import OvradError
-from ..light.direct import DirectLight, direct_irradiance, picked
+from ..light.direct import DirectLight, EmitterRules, direct_irradiance, picked
 from ..light.lamps import Lamp, area_side
 from ..light.sky import Sky
 from ..scene.surfaces import Surfaces
@@ -24,7 +24,7 @@ MIN_LIGHT_SAMPLES, MIN_SKY_SAMPLES = 4, 64  # per receiver point, under the ray 
 
 # The first shot's shadow rays per light source may reach this many times max_rays: the default
 # atlas (2 000 smooth patches, 64 000 receiver points) keeps its 256 sky directions per point
-# (16 M rays; at 8 M, the sky scenes' error went from 4.0 / 4.6 to 4.0 / 5.2 %)
+# (16 M rays; at 8 M, the sky scenes' error is 4.0 / 5.2 % against 4.0 / 4.6 % at 16 M)
 SHADOW_BUDGET = 4
 
 # ... met for emitters picked on power first by a coarser rule of receiver points, down to this
@@ -88,11 +88,15 @@ def within_budget(samples: int, points: int, budget: int, floor: int) -> int:
 
 
 def first_shot_points(
-    points: ReceiverPoints, light: DirectLight, settings: SolveSettings, budget: int, surfaces: Surfaces
+    points: ReceiverPoints,
+    light: DirectLight,
+    settings: SolveSettings,
+    budget: int,
+    source: Surfaces | EmitterRules,
 ):
     """The receiver points the first shot computes its direct light at: all of them, or, where
     emitters whose samples are picked on power would pass the shadow-ray budget (0: none), a
-    coarser rule on every patch (transport.thinned_points: pairs of points on opposite rule rays,
+    coarser rule on every patch (radiosity.transport.thinned_points: pairs of points on opposite rule rays,
     at least one pair, at least MIN_FIRST_SHOT_SHARE of them) so that the emitters keep their full
     samples: there fewer samples widen the light tree's near field round every point and cost
     more than they save (emitter_sample_count). Lamps and the sky meet the budget with fewer samples,
@@ -101,29 +105,31 @@ def first_shot_points(
     world: 5.29 -> 5.67 % at every vertex; a share of 0.25, 5.36 %)."""
     m = len(points.owner)
     per_point = settings.light_samples
-    if budget <= 0 or m * per_point <= budget or not picked_emitters(surfaces, light, per_point):
+    if budget <= 0 or m * per_point <= budget or not picked_emitters(source, light, per_point):
         return points
     return thinned_points(points, max(MIN_FIRST_SHOT_SHARE, budget / (m * per_point)))
 
 
-def picked_emitters(surfaces: Surfaces, light: DirectLight, samples: int) -> bool:
-    """light has emitters, and `samples` of them are picked on power (direct.picked)."""
+def picked_emitters(source: Surfaces | EmitterRules, light: DirectLight, samples: int) -> bool:
+    """light has emitters, and `samples` of them are picked on power (light.direct.picked)."""
     emitters = light.emitters
     return (
         emitters is not None
         and bool(np.any(emitters))
-        and picked(surfaces, emitters, samples, light.emission_scale)
+        and picked(source, emitters, samples, light.emission_scale)
     )
 
 
-def emitter_sample_count(surfaces: Surfaces, light: DirectLight, asked: int, budgeted: int) -> int:
+def emitter_sample_count(
+    source: Surfaces | EmitterRules, light: DirectLight, asked: int, budgeted: int
+) -> int:
     """The emitters' samples per point (the first shot's receiver points, a gather's near hits):
     the budget's `budgeted`, but `asked` where they are picked on the power of more triangles than
-    samples (direct.picked): there fewer samples stand farther apart and the light tree's near
+    samples (light.direct.picked): there fewer samples stand farther apart and the light tree's near
     field around each point grows with them, which costs more rays and time than it saves (20 000
     points of the large interior, 4 / 8 / 16 samples: 27 / 20 / 17 rays per point, 3.3 / 1.8 /
     0.9 s)."""
-    return asked if budgeted < asked and picked_emitters(surfaces, light, asked) else budgeted
+    return asked if budgeted < asked and picked_emitters(source, light, asked) else budgeted
 
 
 def solve(
@@ -142,7 +148,7 @@ def solve(
     first_shot_points), which is far more accurate for small bright sources than hemisphere rays.
     The sky enters only there: transport rays that escape the scene still bring nothing.
     Radiosity B (n, 3) is exitance in W/m^2; radiance is B / pi. progress receives a
-    solver.SolveProgress (with the state) after each step; returning False cancels.
+    radiosity.solver.SolveProgress (with the state) after each step; returning False cancels.
     """
     atlas = problem.atlas
     E = patch_emission(problem, emission_scale)
@@ -152,7 +158,7 @@ def solve(
         T = problem.transport
         shadow_budget = int(SHADOW_BUDGET * settings.max_rays)
         light = direct_light(problem, lamps, settings, emission_scale, sky)
-        rp = first_shot_points(T.points, light, settings, shadow_budget, problem.surfaces)
+        rp = first_shot_points(T.points, light, settings, shadow_budget, problem.emitter_rules)
         points = len(rp.owner)
         samples = within_budget(settings.light_samples, points, shadow_budget, MIN_LIGHT_SAMPLES)
         if any(lamp.kind == "AREA" for lamp in lamps):
@@ -162,13 +168,15 @@ def solve(
         light = replace(
             light,
             samples=samples,
-            emitter_samples=emitter_sample_count(problem.surfaces, light, settings.light_samples, samples),
+            emitter_samples=emitter_sample_count(
+                problem.emitter_rules, light, settings.light_samples, samples
+            ),
             sky_samples=within_budget(settings.sky_samples, points, shadow_budget, MIN_SKY_SAMPLES),
         )
         small = bool(np.any(light.emitters))
         seen = None if T.sky_seen is None else T.sky_seen[rp.owner]
         H, direct_rays = direct_irradiance(
-            problem.surfaces, problem.index.rays, light, rp.points, rp.normals, seen
+            problem.emitter_rules, problem.index.rays, light, rp.points, rp.normals, seen
         )
         received = T.test(H, problem.surfaces.reflectance_at(rp.triangle, rp.points), rp)
         if not np.any(received > 0) and not np.any(E > 0):

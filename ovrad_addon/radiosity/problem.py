@@ -13,15 +13,19 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.sparse import csr_matrix
 
+from ..atlas.balls import BallRule, ball_rule
 from ..atlas.clutter import clutter_from_atlas
 from ..atlas.index import SurfaceIndex, index_surfaces
 from ..atlas.patches import Atlas
 from ..errors import OvradError
+from ..light.direct import EmitterRules
 from ..memory import StagePeaks
-from ..overlap.contacts import seed_contacts
+from ..overlap.contacts import COARSE_Q, COARSE_RINGS, contacts, seed_contacts
+from ..overlap.cuts import THICKNESS_LIFT
 from ..overlap.kept import KeptOverlaps, fitting, kept_contacts, stacked
 from ..overlap.matrix import overlap_matrix
 from ..overlap.quadrature import patch_quadrature
+from ..overlap.sight import Contacts
 from ..progress import StageCallback, report_stage
 from ..scene.surfaces import Surfaces
 from ..settings import DEFAULT_SOLVE, AtlasSettings, ObjectSettings, SolveSettings
@@ -31,21 +35,30 @@ from .transport import Transport, gather_transport
 @dataclass
 class Problem:
     """Everything light-independent: index (sheets, rays), atlas with sheets attached (and its
-    effective areas from the fine rule), C and the transport R (transport.py)."""
+    effective areas from the fine rule), its contacts and clutter samples on the index (found once
+    here, for every alpha lookup and quadrature after), C and the transport R (radiosity/transport.py)."""
 
     surfaces: Surfaces
     atlas: Atlas
     index: SurfaceIndex
+    contacts: Contacts
+    balls: BallRule
     C: csr_matrix
     transport: Transport
     rays: int
     seconds: dict
     kept: int = 0  # patches whose rows and columns of C were kept with the atlas (not integrated)
-    memory: dict = field(default_factory=dict)  # peak resident MiB per stage (memory.py)
+    memory: dict = field(default_factory=dict)  # peak resident MiB per stage (ovrad_addon/memory.py)
     # per-patch values every bake chunk needs (patch_emission, own_emission): integrated over every
-    # patch once, not once per chunk (Cornell box, 100 k patches: the vertex bake took 136 s, now
-    # 12-19 s). Not an init field: dataclasses.replace (other surfaces, another atlas) starts empty.
+    # patch once, not once per chunk (Cornell box, 100 k patches: the vertex bake takes 12-19 s,
+    # against 136 s integrating them per chunk). Not an init field: dataclasses.replace (other
+    # surfaces, another atlas) starts empty.
     cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+    # the emitters' sample rules and light trees, made once for the solve and every bake of it
+    emitter_rules: EmitterRules = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        self.emitter_rules = EmitterRules(self.surfaces)
 
     def cached(self, key, compute):
         """compute(), once per key for this problem; the array comes back read-only."""
@@ -101,7 +114,7 @@ def attach_sheets(atlas: Atlas, index: SurfaceIndex) -> Atlas:
 def located_sheets(atlas: Atlas, index: SurfaceIndex) -> np.ndarray:
     """Sheets found by locating each patch's centre on the surface (-1 where none is found)."""
     n = atlas.normals
-    lift = atlas.thickness * 1.0001 + 1e-9 * index.surfaces.extent
+    lift = atlas.thickness * THICKNESS_LIFT + 1e-9 * index.surfaces.extent
     t, tri = index.rays.closest_hit(atlas.centers + lift[:, None] * n, -n, 2.0 * lift)
     side = np.where(np.einsum("ij,ij->i", index.charts.normals[np.maximum(tri, 0)], n) >= 0, 1, -1)
     sheet = index.sheet_of(tri, side)
@@ -110,12 +123,15 @@ def located_sheets(atlas: Atlas, index: SurfaceIndex) -> np.ndarray:
         # centre off the surface (a disk on a border cell): try the patch's rule points
         probe = replace(atlas, sheet=np.zeros(len(atlas), np.int64))
         views = {s: _all_sheets_view(index, s) for s in (1, -1)}
+        rules = {s: ball_rule(probe, view) for s, view in views.items()}
         for k in missing:
             # either side: the centre hit nothing, so it tells neither (the side whose rule
             # points land on the surface facing the patch's way is the patch's)
             best = (0, -1)
             for s, view in views.items():
-                q = patch_quadrature(probe, view, np.array([k]), 4, rings=2, visibility=None)
+                q = patch_quadrature(
+                    probe, view, np.array([k]), COARSE_Q, rings=COARSE_RINGS, visibility=None, balls=rules[s]
+                )
                 hit = q.triangle[q.triangle >= 0]
                 if len(hit) > best[0]:
                     best = (len(hit), int(index.sheet_of(hit[:1], np.array([s]))[0]))
@@ -151,9 +167,8 @@ def locate(
     blocks of C kept with the atlas; the contacts of those that fit are taken from them."""
     index = both_sides_index(surfaces, backend, atlas)
     atlas = attach_sheets(atlas, index)
-    if kept:
-        kept_contacts_of(atlas, index, fitting(surfaces, atlas, list(kept)))
-    return Problem(surfaces, atlas, index, None, None, 0, {})
+    found = contacts_of(atlas, index, fitting(surfaces, atlas, list(kept)) if kept else [])
+    return Problem(surfaces, atlas, index, found, ball_rule(atlas, index), None, None, 0, {})
 
 
 def prepare(
@@ -168,9 +183,9 @@ def prepare(
 ) -> Problem:
     """Sheets, the overlap matrix C and the transport R for an atlas (quadrature: see overlaps()).
 
-    kept: blocks of C kept with the atlas (kept_overlaps.py); those whose key still fits are used,
+    kept: blocks of C kept with the atlas (overlap/kept.py); those whose key still fits are used,
     only the other patches' rows are integrated. drop_unsupported: patches whose support holds no
-    surface are removed from the problem's atlas (refine.py's children off a sheet's border); by
+    surface are removed from the problem's atlas (generate/refine.py's children off a sheet's border); by
     default the atlas is kept as given, patch for patch (the operators write results back to it)."""
     if len(atlas) == 0:
         raise OvradError("the atlas has no patches: generate an atlas first")
@@ -184,10 +199,16 @@ def prepare(
     seconds["index"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     with peaks.stage("overlap"):
-        C, support, known = overlaps(surfaces, atlas, index, quadrature, kept, progress)
+        fit = fitting(surfaces, atlas, list(kept))
+        found = contacts_of(atlas, index, fit)  # before any row is integrated: those C was integrated with
+        balls = ball_rule(atlas, index)
+        C, support, known = _overlaps(
+            atlas, index, _rule_order(quadrature, atlas, kept), fit, found, balls, progress
+        )
         if drop_unsupported and np.any(support <= 0):
             keep = np.flatnonzero(support > 0)
             atlas, C, support = atlas.select(keep), C.tocsr()[keep][:, keep], support[keep]
+            found, balls = found.select(keep), ball_rule(atlas, index, balls)
         atlas = replace(atlas, support_area=support, effective_area=C.diagonal().copy())
     seconds["overlap"] = time.perf_counter() - t0
     t0 = time.perf_counter()
@@ -195,14 +216,16 @@ def prepare(
         T = gather_transport(
             atlas,
             index,
+            found,
             settings.rays_per_point,
             progress=lambda f: report_stage(progress, 0.4 + 0.6 * f, "casting transport rays"),
             min_rays=settings.min_rays,
             max_rays=settings.max_rays,
             far=settings.cluster_angle,
+            balls=balls,
         )
     seconds["transport"] = time.perf_counter() - t0
-    return Problem(surfaces, atlas, index, C, T, T.rays, seconds, int(known.sum()), peaks.mb)
+    return Problem(surfaces, atlas, index, found, balls, C, T, T.rays, seconds, int(known.sum()), peaks.mb)
 
 
 def overlaps(
@@ -217,19 +240,39 @@ def overlaps(
     still fit and integration of the other rows; and known (n,) bool, the rows the kept blocks gave.
     quadrature: the rule of the rows integrated here; None: the kept blocks' (the finest of them),
     else AtlasSettings.rule_order of the atlas's size (what Generate would choose)."""
-    if quadrature is None:
-        quadrature = max((k.quadrature for k in kept), default=AtlasSettings().rule_order(len(atlas)))
     fit = fitting(surfaces, atlas, list(kept))
-    known, C_kept = stacked(fit, len(atlas))
-    kept_contacts_of(atlas, index, fit)  # before any row is integrated: the contacts C was integrated with
+    found = contacts_of(atlas, index, fit)  # before any row is integrated: those C was integrated with
+    return _overlaps(atlas, index, _rule_order(quadrature, atlas, kept), fit, found, None, progress)
+
+
+def _rule_order(quadrature: int | None, atlas: Atlas, kept: Sequence[KeptOverlaps]) -> int:
+    """The rule of the rows integrated (overlaps())."""
+    if quadrature is None:
+        return max((k.quadrature for k in kept), default=AtlasSettings().rule_order(len(atlas)))
+    return quadrature
+
+
+def _overlaps(
+    atlas: Atlas,
+    index: SurfaceIndex,
+    quadrature: int,
+    fit: Sequence[KeptOverlaps],
+    found: Contacts,
+    balls: BallRule | None,
+    progress: StageCallback | None,
+) -> tuple[csr_matrix, np.ndarray, np.ndarray]:
+    """overlaps() with the fitting kept blocks, the atlas's contacts and clutter samples found."""
+    known, C_kept = stacked(list(fit), len(atlas))
     todo = np.flatnonzero(~known)
     report_stage(progress, 0.05, "integrating overlaps" if len(todo) else "overlaps kept with the atlas")
     C, support = overlap_matrix(
         atlas,
         index,
         quadrature,
+        found,
         progress=lambda f: report_stage(progress, 0.05 + 0.35 * f, "integrating overlaps"),
         rows=todo,
+        balls=balls,
     )
     if C_kept is not None:
         C = (C + C_kept).tocsr()
@@ -238,9 +281,10 @@ def overlaps(
     return C, support, known
 
 
-def kept_contacts_of(atlas: Atlas, index: SurfaceIndex, fit: Sequence[KeptOverlaps]) -> None:
-    """Cache on `index` the contacts of `atlas` that the kept blocks `fit` (kept_overlaps.fitting)
-    hold, the other patches' found again (contact.seed_contacts); nothing where none holds any."""
+def contacts_of(atlas: Atlas, index: SurfaceIndex, fit: Sequence[KeptOverlaps]) -> Contacts:
+    """The contacts of `atlas` on `index`: those the kept blocks `fit` (overlap.kept.fitting) hold,
+    the other patches' found again (overlap.contacts.seed_contacts); all found
+    (overlap.contacts.contacts) where none holds any."""
     flags, flagged = kept_contacts(list(fit), len(atlas))
-    if flagged.any():
-        seed_contacts(atlas, index, flags, flagged)
+    seeded = seed_contacts(atlas, index, flags, flagged) if flagged.any() else None
+    return contacts(atlas, index) if seeded is None else seeded

@@ -4,7 +4,7 @@ Shooting works in test space: the light that shooters K send lands as EC = R[:, 
 the test regions D_h, and C dB = EC turns it back into basis coefficients. The fixed point is
 B = E + C^-1 R B, i.e. exactly the paper's equation (9). The paper's published distribution
 rule (dB_i = c_ih EC_h / (A_h A_i)) is kept as rule="paper" for comparison: its fixed point is
-B = E + P R B with P = diag(1/A) C^T diag(1/A), which is not (9) (see method.md).
+B = E + P R B with P = diag(1/A) C^T diag(1/A), which is not (9) (see docs/method.md).
 """
 
 from __future__ import annotations
@@ -117,7 +117,7 @@ def solve_progressive(
     least `batch` of them (all that hold any, if fewer). One step costs a product with G and a
     solve with C's factors whatever it shoots, so shooting a fixed few per step made the solve
     grow with the patch count squared (see SHOOT_SHARE).
-    C (n x n sparse), transport (R, see transport.py), emission E (n, 3) per
+    C (n x n sparse), transport (R, see radiosity/transport.py), emission E (n, 3) per
     patch exitance; lu: C's factors (factorize(C)), when the caller has them already.
     progress(SolveProgress) returning False cancels: the state returned is then the last
     consistent one (every state is a valid radiosity).

@@ -7,7 +7,7 @@ rays that land in it, so (1/n) sum_j alpha_k(N_j) estimates the integral of alph
 over D_k with visibility included. The alpha at every hit sum to 1, so the rows close exactly,
 sum_k G[h, k] = A_h wherever every ray hits covered surface: energy is conserved by
 construction (the furnace test). Directions are stratified and seeded: a solve is repeatable.
-Direct light (lamps, emitters) is not left to these rays: pipeline.py shoots it with shadow
+Direct light (lamps, emitters) is not left to these rays: radiosity/first_shot.py shoots it with shadow
 rays to the same quadrature points, whose test integrals are accurate to the rule.
 """
 
@@ -19,9 +19,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.sparse import coo_matrix, csc_matrix, csr_matrix
 
+from ..atlas.balls import BallRule
 from ..geometry import start_of, tangent_frame
-from ..overlap.contacts import contacts
 from ..overlap.queries import alpha_at, ray_hits, support_points
+from ..overlap.sight import Contacts
 from ..parallel import WORKERS, threaded
 from .clusters import Clusters, pooled_fraction
 
@@ -39,10 +40,12 @@ class ReceiverPoints:
     triangle: np.ndarray
 
 
-def receiver_points(atlas, index, q: int = 4, rings: int = 1) -> ReceiverPoints:
-    """Coarse rule points on every support (overlap.support_points: also on a support far smaller
+def receiver_points(
+    atlas, index, contacts: Contacts, q: int = 4, rings: int = 1, balls: BallRule | None = None
+) -> ReceiverPoints:
+    """Coarse rule points on every support (overlap.queries.support_points: also on a support far smaller
     than its patch), weights rescaled to the support areas A_h of C."""
-    quad = support_points(atlas, index, q, rings)
+    quad = support_points(atlas, index, contacts, q, rings, balls=balls)
     coarse = np.bincount(quad.owner, weights=quad.weights, minlength=len(atlas))
     w = quad.weights * (atlas.support_area / np.maximum(coarse, 1e-300))[quad.owner]
     return ReceiverPoints(quad.owner, quad.points, quad.normals, w, quad.triangle)
@@ -58,7 +61,7 @@ def thinned_points(points: ReceiverPoints, keep: float) -> ReceiverPoints:
     apart, on opposite rays: their mean stays at the centre, and a light that varies linearly
     over the patch is integrated as exactly as by all the points. Weights rescaled so that each
     patch's still sum to its support area. The first shot of a large atlas under its ray budget
-    (pipeline.first_shot_points)."""
+    (radiosity.first_shot.first_shot_points)."""
     if keep >= 1.0 or len(points.owner) == 0:
         return points
     order = np.argsort(points.owner, kind="stable")
@@ -82,7 +85,7 @@ class Transport:
 
     With clusters (gather_transport's `far`), G = geometric + links @ push: geometric holds the
     near hits (alpha at each), links (n x clusters) the far hits per cluster, push (clusters x n,
-    csc) each cluster's mean-radiosity weights (clusters.py). Products go through the two
+    csc) each cluster's mean-radiosity weights (radiosity/clusters.py). Products go through the two
     factors; G itself is never formed (matrix() does, for small scenes and tests)."""
 
     geometric: csc_matrix
@@ -92,7 +95,7 @@ class Transport:
     escaped: int = -1  # -1: not counted
     # (n,) the fraction of each patch's rays that escaped: its cosine-weighted share of the sky,
     # pooled over its cell of patches where it cast fewer than SKY_TEST_RAYS itself
-    # (clusters.pooled_fraction); NaN where all patches facing its way cast fewer (too few to
+    # (radiosity.clusters.pooled_fraction); NaN where all patches facing its way cast fewer (too few to
     # tell); None: unknown
     sky_fraction: np.ndarray | None = None
     links: csr_matrix | None = None
@@ -208,6 +211,7 @@ def cosine_directions(normals: np.ndarray, count: int, rng: np.random.Generator)
 def gather_transport(
     atlas,
     index,
+    contacts: Contacts,
     rays_per_point: int = 32,
     q: int = 4,
     progress: Callable[[float], None] | None = None,
@@ -217,6 +221,7 @@ def gather_transport(
     min_rays: int = 0,
     max_rays: int = 0,
     far: float = 0.0,
+    balls: BallRule | None = None,
 ) -> Transport:
     """Build G and rho by hemisphere gathering from every patch's receiver points.
 
@@ -227,7 +232,7 @@ def gather_transport(
     rule (q halved, down to 2, while fewer than MIN_POINT_RAYS rays per point would be left) and
     fewer rays per point, down to one, so the time and G's entries (at most a few per ray) stop
     growing with the patch count once it is reached: G's memory is bounded by the budget.
-    far: hits farther than 1/far times the diagonal of a cluster of patches there (clusters.py)
+    far: hits farther than 1/far times the diagonal of a cluster of patches there (radiosity/clusters.py)
     add to that cluster's link instead of taking alpha (0: alpha at every hit); G is then
     geometric + links @ push (Transport). A cluster link holds what many alpha entries did.
 
@@ -235,20 +240,20 @@ def gather_transport(
     at the hits, summed per (h, k)) on one of `workers` threads: embree and most numpy work
     release the GIL. Small chunks keep every temporary array in cache (1M-ray chunks were 1.7x
     slower, measured). Each chunk draws from its own seeded stream, so G does not depend on
-    thread timing.
+    thread timing. contacts, balls: the atlas's (Problem.contacts, Problem.balls).
     """
     n = len(atlas)
     per_patch = 4 * (1 if atlas.beta == "box" else 2)  # receiver points per patch and unit of q
     while max_rays and q > 2 and n * per_patch * q * MIN_POINT_RAYS > max(max_rays, min_rays):
         q //= 2  # a very large atlas: fewer receiver points per patch before fewer rays per point
     scale = receiver_scale(n * per_patch * q, min_rays)
-    pts = receiver_points(atlas, index, q * scale, scale)
+    pts = receiver_points(atlas, index, contacts, q * scale, scale, balls)
     rays_per_point = rays_for(len(pts.owner), rays_per_point, min_rays)
     rays_per_point = capped(len(pts.owner), rays_per_point, max(max_rays, min_rays) if max_rays else 0)
     _ = atlas.grid  # build the lookup once, before the threads need it
     offset = 1e-6 * index.surfaces.extent
     m = len(pts.owner)
-    clusters = Clusters.build(atlas, pts, far, contacts(atlas, index).covered) if far > 0 else None
+    clusters = Clusters.build(atlas, pts, far, contacts.covered) if far > 0 else None
     step = max(1, chunk_rays // rays_per_point)
     starts = list(range(0, m, step))
 
@@ -272,7 +277,7 @@ def gather_transport(
             near = np.flatnonzero(near)
             points, tri, side = np.take(points, near, axis=0), tri[near], side[near]
             owner, ray_w = owner[near], ray_w[near]
-        a = alpha_at(atlas, index, points, tri, side).tocoo()
+        a = alpha_at(atlas, index, contacts, points, tri, side).tocoo()
         # summed per (h, k) within the chunk: memory follows G, not rays
         part = _summed(a.data * ray_w[a.row], owner[a.row], a.col, (n, n))
         out = np.ones(len(dirs), bool)
@@ -325,7 +330,7 @@ def _sky_test(index, pts: ReceiverPoints, escaped: np.ndarray, cast: np.ndarray,
     of the production room's bake under a grey world). Only when the test costs at most
     SKY_TEST_SHARE of the rays already cast: under a large atlas's ray budget every patch casts
     a few, and testing them all would cost more than the transport (their cells tell instead:
-    clusters.pooled_fraction)."""
+    radiosity.clusters.pooled_fraction)."""
     counts = np.bincount(pts.owner, minlength=len(cast))
     short = np.flatnonzero((cast < SKY_TEST_RAYS) & (counts > 0))
     want = SKY_TEST_RAYS - cast[short]

@@ -99,7 +99,11 @@ def test_generate_on_cube_makes_one_atlas_object_with_every_attribute(scene):
     assert bpy.ops.ovrad.generate_atlas() == {"FINISHED"}
     (atlas,) = atlases()
     assert atlas["ovrad_source"] == "Cube" and atlas["ovrad_beta"] == "smooth"
-    assert [c.name for c in atlas.users_collection] == ["ovrad"]
+    # in the scene through the ovrad collection; also in the one Blender's glTF exporter leaves out
+    assert sorted(c.name for c in atlas.users_collection) == ["glTF_not_exported", "ovrad"]
+    assert atlas.hide_render and bpy.data.collections["ovrad"].name in {
+        c.name for c in bpy.context.scene.collection.children
+    }
     assert "ovrad" in [c.name for c in scene.collection.children]
     mesh = atlas.data
     assert len(mesh.vertices) > 50 and len(mesh.edges) > 0 and len(mesh.polygons) == 0

@@ -111,7 +111,11 @@ def floor_points(ovrad, points):
         tri[(tri < 0) & (wa >= 0) & (wb >= 0) & (wa + wb <= 1)] = t
     keep = tri >= 0
     return keep, ovrad.ovrad_addon.radiance_at(
-        sol.problem, sol.radiosity, points[keep], tri[keep], 1, sol.first_shot, sol.light
+        sol.problem,
+        ovrad.ovrad_addon.BakeRequest(sol.radiosity, sol.first_shot, sol.light),
+        points[keep],
+        tri[keep],
+        1,
     )
 
 

@@ -359,7 +359,7 @@ def test_corners_of_a_triangle_without_area_do_not_darken_the_vertex_they_share(
 
 def test_a_flat_shaded_sphere_gathers_once_per_vertex_for_the_point_domain(ovrad, fresh_scene, monkeypatch):
     """A vertex of a flat-shaded sphere (faces 22.5 degrees apart) gathers once for all the faces
-    around it when the vertex domain averages them (gather.shared_normals), once per face for the
+    around it when the vertex domain averages them (bake.gather.shared_normals), once per face for the
     face corner domain; both hold the furnace answer inside a closed furnace box."""
     fresh_scene.ovrad.patch_count = 400
     fresh_scene.ovrad.solve_tolerance = 1e-4
@@ -376,9 +376,9 @@ def test_a_flat_shaded_sphere_gathers_once_per_vertex_for_the_point_domain(ovrad
     counted = []
     original = gather.gather_indirect
 
-    def counting(problem, radiosity, emission, points, *args, **kwargs):
+    def counting(problem, gather, points, *args, **kwargs):
         counted.append(int(np.sum(np.linalg.norm(points, axis=1) < 0.6)))  # the sphere's (radius 0.5)
-        return original(problem, radiosity, emission, points, *args, **kwargs)
+        return original(problem, gather, points, *args, **kwargs)
 
     monkeypatch.setattr(gather, "gather_indirect", counting)
     mesh = sphere.data

@@ -31,7 +31,7 @@ def add_lamp(kind, name=None, location=(0, 0, 0), rotation=(0, 0, 0), scale=(1, 
 
 def read(ovrad):
     warnings = []
-    lamps = ovrad.operators.scene_io.read_lamps(bpy.context.evaluated_depsgraph_get(), warnings)
+    lamps = ovrad.operators.scene_model.read_lamps(bpy.context.evaluated_depsgraph_get(), warnings)
     return lamps, warnings
 
 

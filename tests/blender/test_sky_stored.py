@@ -78,8 +78,9 @@ def test_a_bake_after_reopening_casts_sky_rays_where_the_solve_said(ovrad, fresh
     top = max(v.max() for v in before.values())
     assert top > 0
     for name, values in before.items():
-        # the same rules, the same rays: the same light (before this was stored, the reopened bake
-        # cast sky rays at every patch and moved vertices by up to the 1 % share left out)
+        # the same rules, the same rays: the same light (a reopened bake that did not read the
+        # stored sky patches would cast sky rays at every patch and move vertices by up to the 1 %
+        # share left out)
         np.testing.assert_allclose(after[name], values, rtol=1e-6, atol=1e-7 * top, err_msg=name)
 
 

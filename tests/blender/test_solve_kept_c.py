@@ -103,7 +103,7 @@ def test_the_kept_c_gives_the_solve_that_integrates_it_again(saved, ovrad):
 
 def test_the_kept_contacts_are_taken(saved, ovrad, monkeypatch):
     """Each atlas keeps its patches' contact flags beside its C, under its key; a solve of the
-    reopened file takes them (contact.py's rule is never cast). With them removed by hand the kept
+    reopened file takes them (overlap/contacts.py's rule is never cast). With them removed by hand the kept
     C no longer fits (as with a kept value changed): C is integrated and the contacts found again,
     and the solve is the same. (Blocks kept before the flags were, with keys made without them,
     still fit: test_kept_overlaps.py.)"""

@@ -1,4 +1,4 @@
-"""Textured albedo (albedo.py): sampling rules checked against linear functions they must reproduce."""
+"""Textured albedo (scene/albedo.py): sampling rules checked against linear functions they must reproduce."""
 
 import numpy as np
 import pytest

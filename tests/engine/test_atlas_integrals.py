@@ -9,6 +9,7 @@ import scenes
 from ovrad_addon.atlas.index import index_surfaces
 from ovrad_addon.atlas.patches import Atlas
 from ovrad_addon.generate.build import build_atlas
+from ovrad_addon.overlap.contacts import contacts as find_contacts
 from ovrad_addon.overlap.matrix import overlap_matrix
 from ovrad_addon.overlap.queries import alpha_at, patch_average, reconstruct
 from ovrad_addon.scene.surfaces import Surfaces
@@ -68,9 +69,8 @@ def test_two_box_disks_overlap_coefficient_is_half_the_lens_area():
     # turn, so each turn's error is the angular rule's (about 2 %), and the turns' mean is unbiased.
     found = []
     for turn in np.arange(10) / 10:
-        C, support = overlap_matrix(
-            replace(atlas, random=np.array([turn, (turn + 0.35) % 1])), index, q=FINE_QUADRATURE
-        )
+        turned = replace(atlas, random=np.array([turn, (turn + 0.35) % 1]))
+        C, support = overlap_matrix(turned, index, FINE_QUADRATURE, find_contacts(turned, index))
         found.append([C[0, 1], C[1, 0], C[0, 0]])
         np.testing.assert_allclose(support, np.pi * r * r, rtol=1e-12)
     found = np.array(found)
@@ -87,7 +87,9 @@ def test_paper_figure3_box_beta_averages_and_smooth_beta_blends():
     lens = np.abs(x - 2.0) < r - d / 2
     for beta in ("box", "smooth"):
         atlas, index = two_disks(r, d, beta)
-        a = alpha_at(atlas, index, pts, np.zeros(len(x), np.int64), np.ones(len(x)))
+        a = alpha_at(
+            atlas, index, find_contacts(atlas, index), pts, np.zeros(len(x), np.int64), np.ones(len(x))
+        )
         colour = reconstruct(a, red_green)
         np.testing.assert_allclose(colour.sum(axis=1), 1.0, atol=1e-12)
         left_only = x < 2.0 + d / 2 - r
@@ -115,7 +117,7 @@ def test_alpha_is_a_partition_of_unity_and_atlas_covers_every_point(name, beta):
         on = index.sheet_of(tri, sides) >= 0
         if not on.any():
             continue
-        a = alpha_at(atlas, index, pts[on], tri[on], sides[on])
+        a = alpha_at(atlas, index, find_contacts(atlas, index), pts[on], tri[on], sides[on])
         total = np.asarray(a.sum(axis=1)).ravel()
         assert total.min() > 0.5, f"{(total < 0.5).sum()} sampled points are in no patch (holes)"
         np.testing.assert_allclose(total, 1.0, atol=1e-9)
@@ -129,7 +131,7 @@ def test_overlap_rows_sum_to_support_area_and_effective_areas_to_surface_area(na
     settings = AtlasSettings(patch_count=800)
     atlas = build_atlas(s, settings)
     index = index_surfaces(s, settings)
-    C, support = overlap_matrix(atlas, index, settings.rule_order(len(atlas)))
+    C, support = overlap_matrix(atlas, index, settings.rule_order(len(atlas)), find_contacts(atlas, index))
     np.testing.assert_allclose(np.asarray(C.sum(axis=1)).ravel(), support, rtol=1e-9)
     # every patch sheet is one side of the surface: sum of c_kk = area of the covered sides
     sides = (index.sheet_table >= 0).sum(axis=1)
@@ -163,9 +165,9 @@ def test_rows_of_repeated_configurations_are_copied_without_losing_accuracy():
     settings = AtlasSettings(patch_count=6000)
     index = index_surfaces(s, settings)
     atlas = attach_sheets(build_atlas(s, settings), index)
-    C_copy, A_copy = overlap_matrix(atlas, index, 12, reuse=True)
-    C_all, A_all = overlap_matrix(atlas, index, 12, reuse=False)
-    C_fine, _ = overlap_matrix(atlas, index, 24, reuse=False)
+    C_copy, A_copy = overlap_matrix(atlas, index, 12, find_contacts(atlas, index), reuse=True)
+    C_all, A_all = overlap_matrix(atlas, index, 12, find_contacts(atlas, index), reuse=False)
+    C_fine, _ = overlap_matrix(atlas, index, 24, find_contacts(atlas, index), reuse=False)
 
     def error(C):
         return np.sqrt((C - C_fine).power(2).sum() / C_fine.power(2).sum())
@@ -179,7 +181,9 @@ def test_rows_of_repeated_configurations_are_copied_without_losing_accuracy():
     h, i = neighbour_pairs(atlas)
     copied = sum(
         len(b.member)
-        for b in repeated_rows(atlas, index, h, i, np.searchsorted(h, np.arange(len(atlas) + 1)))
+        for b in repeated_rows(
+            atlas, index, find_contacts(atlas, index), h, i, np.searchsorted(h, np.arange(len(atlas) + 1))
+        )
     )
     assert copied > 0.3 * len(atlas)
     same = np.isclose(A_copy, A_all, rtol=1e-9)
@@ -196,7 +200,7 @@ def strip_area(r: float, w: float) -> float:
 def test_support_of_a_disk_on_a_strip_narrower_than_its_rule_matches_the_closed_form(width):
     # a disk of radius 0.5 centred on a strip 0.05-0.3 wide: the support is cut on nearly every
     # rule ray, at a tenth of the radius for the narrowest, inside the coarse rule's first ring.
-    # The cuts found along each ray (overlap.support_cuts) give the area to the angular rule's
+    # The cuts found along each ray (overlap.cuts.support_cuts) give the area to the angular rule's
     # error per turn of the rays (about 6 % at the narrowest), and the turns' mean within 0.5 %
     # (splitting the cut rays into 2q rings instead was 2.6-3.1 % off on average at 0.05 and 0.1)
     r = 0.5
@@ -221,7 +225,8 @@ def test_support_of_a_disk_on_a_strip_narrower_than_its_rule_matches_the_closed_
     )
     exact = strip_area(r, width)
     q = FINE_QUADRATURE
-    found = [overlap_matrix(replace(atlas, random=np.array([t])), index, q)[1][0] for t in np.arange(10) / 10]
+    turns = [replace(atlas, random=np.array([t])) for t in np.arange(10) / 10]
+    found = [overlap_matrix(a, index, q, find_contacts(a, index))[1][0] for a in turns]
     np.testing.assert_allclose(found, exact, rtol=0.07)
     np.testing.assert_allclose(np.mean(found), exact, rtol=5e-3)
 
@@ -235,7 +240,7 @@ def test_patch_average_of_a_field_on_a_few_sheets_skips_only_patches_it_cannot_r
     index = index_surfaces(s, AtlasSettings(patch_count=300))
     lamp = s.emission
     assert 0 < np.count_nonzero(lamp.any(axis=1)) < len(lamp) // 10
-    few = patch_average(atlas, index, lamp)
-    every = patch_average(atlas, index, lamp + 1.0)
+    few = patch_average(atlas, index, find_contacts(atlas, index), lamp)
+    every = patch_average(atlas, index, find_contacts(atlas, index), lamp + 1.0)
     np.testing.assert_allclose(every - 1.0, few, atol=1e-12)
     assert np.count_nonzero(few.any(axis=1)) > 0

@@ -48,7 +48,7 @@ def test_a_triangle_without_area_is_baked_lit_as_blender_shades_it_facing_up():
 
     from reference import analytic
 
-    from ovrad_addon.bake.points import irradiance_at
+    from ovrad_addon.bake.points import BakeRequest, irradiance_at
     from ovrad_addon.light.lamps import Lamp
     from ovrad_addon.radiosity.first_shot import direct_light, solve
     from ovrad_addon.radiosity.problem import prepare
@@ -68,7 +68,12 @@ def test_a_triangle_without_area_is_baked_lit_as_blender_shades_it_facing_up():
     tri = np.full(3, degenerate)
     sides = bake_sides(problem, tri)
     assert np.all(sides == 1)
-    got = np.pi * irradiance_at(problem, state.radiosity, line, tri, sides, state.first_shot, light)[:, 0]
+    got = (
+        np.pi
+        * irradiance_at(problem, BakeRequest(state.radiosity, state.first_shot, light), line, tri, sides)[
+            :, 0
+        ]
+    )
     up = np.tile([0.0, 0.0, 1.0], (3, 1))
     want = analytic.point_lamp_irradiance(400.0, (0.1, 0.3, 1.6), line, up)
     np.testing.assert_allclose(got, want, rtol=1e-3)

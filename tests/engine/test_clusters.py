@@ -1,4 +1,4 @@
-"""Hierarchical transport: far hits linked to clusters of patches (clusters.py), against the flat
+"""Hierarchical transport: far hits linked to clusters of patches (radiosity/clusters.py), against the flat
 transport (alpha at every hit), exact answers and the solver's own direct solution."""
 
 from dataclasses import replace
@@ -9,6 +9,7 @@ import pytest
 import scenes
 from ovrad_addon.atlas.index import index_surfaces
 from ovrad_addon.generate.build import build_atlas, build_atlas_and_overlaps
+from ovrad_addon.overlap.contacts import contacts as find_contacts
 from ovrad_addon.overlap.matrix import overlap_matrix
 from ovrad_addon.overlap.queries import alpha_at, patch_average, reconstruct
 from ovrad_addon.radiosity.clusters import Clusters
@@ -27,7 +28,7 @@ def closed_room(shape: str, rho: float, patch_count: int = 200, beta: str = "smo
     st = AtlasSettings(patch_count=patch_count, beta=beta, overlap=overlap)
     atlas = build_atlas(s, st)
     index = index_surfaces(s, st)
-    C, support = overlap_matrix(atlas, index, st.rule_order(len(atlas)))
+    C, support = overlap_matrix(atlas, index, st.rule_order(len(atlas)), find_contacts(atlas, index))
     atlas = replace(atlas, support_area=support, effective_area=C.diagonal().copy())
     return s, atlas, index, C
 
@@ -38,12 +39,12 @@ def cornell():
     atlas = build_atlas_and_overlaps(s, AtlasSettings(patch_count=2000)).atlas
     problem = prepare(s, atlas, SolveSettings(cluster_angle=0.0))
     pts, tri = scenes.sample_surface(s, 20_000, seed=3)
-    return problem, alpha_at(problem.atlas, problem.index, pts, tri, 1)
+    return problem, alpha_at(problem.atlas, problem.index, problem.contacts, pts, tri, 1)
 
 
 def test_a_cluster_holds_patches_of_one_sheet_facing_one_way_and_averages_them():
     s, atlas, index, _ = closed_room("sphere", 0.5, 400)
-    cl = Clusters.build(atlas, receiver_points(atlas, index), far=0.5)
+    cl = Clusters.build(atlas, receiver_points(atlas, index, find_contacts(atlas, index)), far=0.5)
     P = cl.push.tocsr()
     # each row is a mean: weights >= 0 summing to 1 (a uniform radiosity is reproduced exactly)
     assert P.data.min() >= 0
@@ -62,7 +63,7 @@ def test_a_cluster_holds_patches_of_one_sheet_facing_one_way_and_averages_them()
 def test_far_hits_link_only_to_clusters_small_for_their_distance():
     s, atlas, index, _ = closed_room("cube", 0.5, 600)
     angle = 0.5
-    cl = Clusters.build(atlas, receiver_points(atlas, index), far=angle)
+    cl = Clusters.build(atlas, receiver_points(atlas, index, find_contacts(atlas, index)), far=angle)
     rng = np.random.default_rng(4)
     pts, tri = scenes.sample_surface(s, 4000, seed=5)
     dist = rng.uniform(0.0, 2.0, len(pts))
@@ -87,15 +88,15 @@ def test_far_hits_link_only_to_clusters_small_for_their_distance():
 def test_the_furnace_stays_exact_with_clusters(shape, beta, overlap):
     rho = 0.9
     s, atlas, index, C = closed_room(shape, rho, 400, beta, overlap)
-    T = gather_transport(atlas, index, far=1.0)
+    T = gather_transport(atlas, index, find_contacts(atlas, index), far=1.0)
     far = T.links.sum()
     assert far > 0.2 * (far + T.geometric.sum())  # a good share of the light comes through clusters
     # rows close: every ray of a closed room lands on covered surface, alpha or a cluster's mean
     np.testing.assert_allclose(np.asarray(T.matrix().sum(axis=1)).ravel(), atlas.support_area, rtol=1e-9)
-    E = np.pi * patch_average(atlas, index, s.emission)
+    E = np.pi * patch_average(atlas, index, find_contacts(atlas, index), s.emission)
     state = solve_progressive(C, T, E, tolerance=1e-5)
     pts, tri = scenes.sample_surface(s, 5000, seed=11)
-    L = reconstruct(alpha_at(atlas, index, pts, tri, 1), state.radiosity) / np.pi
+    L = reconstruct(alpha_at(atlas, index, find_contacts(atlas, index), pts, tri, 1), state.radiosity) / np.pi
     np.testing.assert_allclose(L, 1.0 / (1.0 - rho), rtol=2e-3)
 
 
@@ -108,11 +109,11 @@ def test_shooting_through_the_factors_reaches_the_direct_solution():
     st = AtlasSettings(patch_count=200, overlap=1.6)
     atlas = build_atlas(s, st)
     index = index_surfaces(s, st)
-    C, support = overlap_matrix(atlas, index, st.rule_order(len(atlas)))
+    C, support = overlap_matrix(atlas, index, st.rule_order(len(atlas)), find_contacts(atlas, index))
     atlas = replace(atlas, support_area=support, effective_area=C.diagonal().copy())
-    T = gather_transport(atlas, index, far=1.0)
+    T = gather_transport(atlas, index, find_contacts(atlas, index), far=1.0)
     assert T.links.nnz > 0
-    E = np.pi * patch_average(atlas, index, s.emission)
+    E = np.pi * patch_average(atlas, index, find_contacts(atlas, index), s.emission)
     direct = solve_direct(C, T, E)
     for share, batch in [(1e-9, 1), (0.99, 64)]:  # few columns of the factors per step, then all
         state = solve_progressive(C, T, E, tolerance=1e-7, batch=batch, share=share)
@@ -127,7 +128,9 @@ def test_clusters_move_the_cornell_box_less_than_its_own_ray_noise(cornell):
     problem, alpha = cornell
 
     def indirect(angle, seed):
-        T = gather_transport(problem.atlas, problem.index, 32, min_rays=1 << 20, far=angle, seed=seed)
+        T = gather_transport(
+            problem.atlas, problem.index, problem.contacts, 32, min_rays=1 << 20, far=angle, seed=seed
+        )
         st = solve(replace(problem, transport=T), settings=SolveSettings(tolerance=1e-5))
         return reconstruct(alpha, st.radiosity - st.first_shot), T
 

@@ -9,8 +9,9 @@ import pytest
 import scenes
 from ovrad_addon import names
 from ovrad_addon.atlas.clutter import clutter_from_atlas
-from ovrad_addon.bake.points import radiance_at
+from ovrad_addon.bake.points import BakeRequest, radiance_at
 from ovrad_addon.generate.build import build_atlas
+from ovrad_addon.overlap.contacts import contacts as find_contacts
 from ovrad_addon.overlap.matrix import overlap_matrix
 from ovrad_addon.overlap.queries import alpha_at
 from ovrad_addon.radiosity.first_shot import solve
@@ -86,11 +87,11 @@ def test_alpha_sums_to_one_on_the_pieces_and_c_holds_their_area(room, atlas):
     index = both_sides_index(room, atlas=atlas)
     problem_atlas = prepare(room, atlas).atlas
     pts, tri, side = points_on_pieces(room, 4000, seed=2)
-    a = alpha_at(problem_atlas, index, pts, tri, side)
+    a = alpha_at(problem_atlas, index, find_contacts(problem_atlas, index), pts, tri, side)
     np.testing.assert_allclose(np.asarray(a.sum(axis=1)).ravel(), 1.0, atol=1e-12)
     # trace of C over the balls = the area they cover: both sides of every leaf, the outside
     # of every cube (a closed separate cube: its inside is not part of any support)
-    C, support = overlap_matrix(problem_atlas, index, 12)
+    C, support = overlap_matrix(problem_atlas, index, 12, find_contacts(problem_atlas, index))
     ball = problem_atlas.shapes == names.SHAPE_BALL
     k = room.corners
     tri_area = 0.5 * np.linalg.norm(np.cross(k[:, 1] - k[:, 0], k[:, 2] - k[:, 0]), axis=1)
@@ -105,10 +106,10 @@ def test_furnace_with_clutter_is_exact(room, atlas):
     problem = prepare(room, atlas)
     state = solve(problem, settings=SolveSettings(tolerance=1e-5))
     pts, tri = scenes.sample_surface(room, 3000, seed=9)
-    L = radiance_at(problem, state.radiosity, pts, tri, 1)
+    L = radiance_at(problem, BakeRequest(state.radiosity), pts, tri, 1)
     np.testing.assert_allclose(L, 2.0 / (1 - 0.9), rtol=5e-3)
     pts, tri, side = points_on_pieces(room, 3000, seed=3)
-    L = radiance_at(problem, state.radiosity, pts, tri, side)
+    L = radiance_at(problem, BakeRequest(state.radiosity), pts, tri, side)
     np.testing.assert_allclose(L, 2.0 / (1 - 0.9), rtol=5e-3)
 
 

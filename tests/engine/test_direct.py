@@ -1,4 +1,4 @@
-"""Direct light at bake points (direct.py, points.radiance_at with the first shot split off)
+"""Direct light at bake points (light/direct.py, bake.points.radiance_at with the first shot split off)
 against closed forms: emitter sampling, shadow rays from concave edges, sharp shadows."""
 
 from dataclasses import replace
@@ -9,7 +9,7 @@ from reference import analytic
 
 import scenes
 from ovrad_addon.bake import points
-from ovrad_addon.bake.points import irradiance_at, radiance_at
+from ovrad_addon.bake.points import BakeRequest, irradiance_at, radiance_at
 from ovrad_addon.generate.build import build_atlas
 from ovrad_addon.geometry import subtriangle_centroids
 from ovrad_addon.light import direct, tree
@@ -27,7 +27,7 @@ RHO = 0.8
 
 
 def near_emitter(monkeypatch, value: float) -> None:
-    """Set NEAR_EMITTER where it is read: the near field of the samples (direct.py) and the reach
+    """Set NEAR_EMITTER where it is read: the near field of the samples (light/direct.py) and the reach
     of the light tree's nodes (tree.py)."""
     monkeypatch.setattr(direct, "NEAR_EMITTER", value)
     monkeypatch.setattr(tree, "NEAR_EMITTER", value)
@@ -69,11 +69,10 @@ def test_emitter_irradiance_matches_lambert_contour_form_factor(flip):
     assert 3.0 < errors[0] / errors[1] < 5.0
 
 
-def test_the_emitter_rule_is_made_once_per_surfaces_and_emitters(monkeypatch):
-    """A gather asks for the emitters' light at every chunk of its near hits: the rule is made once
-    for the same surfaces and emitters, again for others, and holds neither alive."""
-    import gc
-
+def test_the_emitter_rule_is_made_once_per_emitters_and_count(monkeypatch):
+    """A gather asks for the emitters' light at every chunk of its near hits: the EmitterRules a
+    problem keeps make the rule once for the same emitters (an equal copy too) and count, again for
+    others; plain surfaces keep nothing between calls."""
     s, _ = _emitter_over_plane(False)
     rays = make_rays(s.vertices, s.triangles)
     pts, nrm = np.zeros((5, 3)), np.tile([0.0, 0.0, 1.0], (5, 1))
@@ -81,18 +80,20 @@ def test_the_emitter_rule_is_made_once_per_surfaces_and_emitters(monkeypatch):
     real = direct.emitter_samples
     monkeypatch.setattr(direct, "emitter_samples", lambda *a, **k: made.append(1) or real(*a, **k))
     emitters = s.emission.sum(1) > 0
-    first, _ = emitter_irradiance(s, rays, emitters, pts, nrm, 64)
-    again, _ = emitter_irradiance(s, rays, emitters, pts, nrm, 64)
+    rules = direct.EmitterRules(s)
+    first, _ = emitter_irradiance(rules, rays, emitters, pts, nrm, 64)
+    again, _ = emitter_irradiance(rules, rays, emitters.copy(), pts, nrm, 64)  # an equal copy
     assert len(made) == 1
     np.testing.assert_array_equal(first, again)
-    emitter_irradiance(s, rays, emitters.copy(), pts, nrm, 64)  # other emitters (an equal copy)
-    emitter_irradiance(s, rays, emitters, pts, nrm, 16)  # another count
+    emitter_irradiance(rules, rays, emitters, pts, nrm, 16)  # another count
+    other = emitters.copy()
+    other[np.flatnonzero(emitters)[0]] = False  # other emitters
+    emitter_irradiance(rules, rays, other, pts, nrm, 64)
     assert len(made) == 3
-    n = len(direct._RULES)
-    del emitters
-    gc.collect()
-    emitter_irradiance(s, rays, s.emission.sum(1) > 0, pts, nrm, 64)
-    assert len(made) == 4 and len(direct._RULES) <= n  # the dead entries went
+    alone, _ = emitter_irradiance(s, rays, emitters, pts, nrm, 64)
+    emitter_irradiance(s, rays, emitters, pts, nrm, 64)
+    assert len(made) == 5
+    np.testing.assert_array_equal(alone, first)
 
 
 def test_shadow_ray_from_a_concave_edge_is_not_blocked_by_the_neighbouring_face():
@@ -153,11 +154,14 @@ def test_bake_points_get_the_exact_shadow_edge(shadowed_plane):
     pts, exact = pts[margin > 1e-6], exact[margin > 1e-6]
     tri = problem.index.rays.closest_hit(pts + [0, 0, 1e-3], np.tile([0, 0, -1.0], (len(pts), 1)), 1.0)[1]
     light = direct_light(problem, (lamp,), SolveSettings())
-    sharp = radiance_at(problem, state.radiosity, pts, tri, 1, state.first_shot, light)[:, 0]
+    sharp = radiance_at(problem, BakeRequest(state.radiosity, state.first_shot, light), pts, tri, 1)[:, 0]
     np.testing.assert_allclose(sharp, RHO * exact / np.pi, rtol=1e-9, atol=1e-12)
-    H = np.pi * irradiance_at(problem, state.radiosity, pts, tri, 1, state.first_shot, light)[:, 0]
+    H = (
+        np.pi
+        * irradiance_at(problem, BakeRequest(state.radiosity, state.first_shot, light), pts, tri, 1)[:, 0]
+    )
     np.testing.assert_allclose(H, exact, rtol=1e-9, atol=1e-12)
-    blurred = radiance_at(problem, state.radiosity, pts, tri, 1)[:, 0]
+    blurred = radiance_at(problem, BakeRequest(state.radiosity), pts, tri, 1)[:, 0]
     near_edge = margin[margin > 1e-6] < 0.05
     assert np.abs(blurred - RHO * exact / np.pi)[near_edge].max() > 0.1 * (RHO * exact / np.pi).max()
 
@@ -172,7 +176,7 @@ def test_split_keeps_the_furnace_exact():
     light = direct_light(problem, (), SolveSettings())
     assert not np.any(light.emitters)
     pts, tri = scenes.sample_surface(s, 2000, seed=1)
-    L = radiance_at(problem, state.radiosity, pts, tri, 1, state.first_shot, light)
+    L = radiance_at(problem, BakeRequest(state.radiosity, state.first_shot, light), pts, tri, 1)
     np.testing.assert_allclose(L, analytic.furnace_radiance(1.0, 0.5), rtol=1e-3)
 
 
@@ -233,8 +237,8 @@ def test_the_first_shots_budget_keeps_picked_emitter_samples():
 
 @pytest.mark.parametrize("cuts, want", [(1, 8), (20, 16)])  # a quad: 2 triangles; 800 (picked)
 def test_a_gathers_near_hits_keep_16_picked_emitter_samples(cuts, want, monkeypatch):
-    """Near gather hits take 8 emitter samples (gather.NEAR_LIGHT_SAMPLES), but 16 of an emitter
-    of many triangles, whose samples are picked on power (gather.NEAR_PICKED_SAMPLES)."""
+    """Near gather hits take 8 emitter samples (bake.gather.NEAR_LIGHT_SAMPLES), but 16 of an emitter
+    of many triangles, whose samples are picked on power (bake.gather.NEAR_PICKED_SAMPLES)."""
     ev, et = scenes.plane(size=1.0, n=cuts, z=0.5)
     fv, ft = scenes.plane(size=3.0, n=2)
     v = np.vstack([ev[:, [0, 1, 2]] - [0.5, 0.5, 0.0], fv - [1.5, 1.5, 0.0]])
@@ -255,7 +259,7 @@ def test_a_gathers_near_hits_keep_16_picked_emitter_samples(cuts, want, monkeypa
     pts, tri = scenes.sample_surface(s, 50, seed=2)
     floor = tri >= len(et)
     light = direct_light(problem, (), SolveSettings())
-    radiance_at(problem, state.radiosity, pts[floor], tri[floor], 1, state.first_shot, light)
+    radiance_at(problem, BakeRequest(state.radiosity, state.first_shot, light), pts[floor], tri[floor], 1)
     assert len(seen) == 1 and seen[0].samples == 8
     assert (seen[0].emitter_samples or seen[0].samples) == want
 
@@ -528,7 +532,7 @@ def test_point_hash_depends_on_the_point_only_and_spreads_over_the_unit_square()
 def test_a_jittered_area_lamp_rule_averages_to_the_exact_penumbra(half_shadowed_floor):
     """3 x 3 points of a 0.6 m square lamp at z = 2, over an occluder edge at z = 1: a floor point at
     x0 sees the lamp's part x > -x0 (a rectangle: its closed form). The fixed rule puts every
-    point on the same step of it; jittered per point (lights.jittered_area_samples) the steps fall
+    point on the same step of it; jittered per point (light.lamps.jittered_area_samples) the steps fall
     elsewhere at each point, and the mean over many points is the closed form."""
     rays, extent = half_shadowed_floor
     lamp = Lamp("AREA", position=(0.0, 0.0, 2.0), power=300.0, size_x=0.6, size_y=0.6)

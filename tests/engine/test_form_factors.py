@@ -24,6 +24,7 @@ import scenes
 from ovrad_addon.atlas.index import index_surfaces
 from ovrad_addon.atlas.patches import Atlas
 from ovrad_addon.generate.build import build_atlas
+from ovrad_addon.overlap.contacts import contacts as find_contacts
 from ovrad_addon.overlap.matrix import overlap_matrix
 from ovrad_addon.radiosity.problem import prepare
 from ovrad_addon.radiosity.transport import gather_transport
@@ -71,11 +72,11 @@ def two_patches(parts, centers, radii, shapes):
 def two_patch_form_factor(parts, centers, radii, shapes):
     """Mean G[0, 1] / A_0 over seeds, and the rays it used, with the bare estimator."""
     _, index, atlas = two_patches(parts, centers, radii, shapes)
-    _, support = overlap_matrix(atlas, index, 12)
+    _, support = overlap_matrix(atlas, index, 12, find_contacts(atlas, index))
     atlas = replace(atlas, support_area=support)
     est, rays = [], 0
     for seed in range(SEEDS):
-        T = gather_transport(atlas, index, rays_per_point=RAYS, seed=seed)
+        T = gather_transport(atlas, index, find_contacts(atlas, index), rays_per_point=RAYS, seed=seed)
         est.append(T.geometric[0, 1] / support[0])
         rays += int(np.sum(T.points.owner == 0)) * RAYS
     return float(np.mean(est)), rays

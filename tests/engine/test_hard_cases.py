@@ -1,4 +1,4 @@
-"""Numerical stability on the hard cases of method.md §4, each against the furnace's closed form
+"""Numerical stability on the hard cases of docs/method.md §4, each against the furnace's closed form
 L = L_e / (1 - rho) (tests/reference/analytic.py): coincident patches (C singular), nested
 patches, rho = 0.999, and zero-area triangles in the mesh."""
 
@@ -10,7 +10,7 @@ from reference import analytic
 
 import scenes
 from ovrad_addon.atlas.patches import Atlas
-from ovrad_addon.bake.points import radiance_at
+from ovrad_addon.bake.points import BakeRequest, radiance_at
 from ovrad_addon.generate.build import build_atlas
 from ovrad_addon.radiosity.first_shot import solve
 from ovrad_addon.radiosity.problem import prepare
@@ -35,7 +35,7 @@ def reconstructed(s: Surfaces, atlas: Atlas, settings: SolveSettings | None = No
     problem = prepare(s, atlas, settings)
     state = solve(problem, (), settings)
     pts, tri = scenes.sample_surface(s, 5000, seed=4)  # by area: never on a zero-area triangle
-    return radiance_at(problem, state.radiosity, pts, tri, 1)
+    return radiance_at(problem, BakeRequest(state.radiosity), pts, tri, 1)
 
 
 @pytest.mark.parametrize("beta", ["box", "smooth"])

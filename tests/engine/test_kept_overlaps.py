@@ -1,4 +1,4 @@
-"""C kept with the atlas (kept_overlaps.py): Generate's C is the C a solve integrates, each atlas
+"""C kept with the atlas (overlap/kept.py): Generate's C is the C a solve integrates, each atlas
 object's block on its own, and a kept block is used only while it still fits."""
 
 from __future__ import annotations
@@ -13,8 +13,9 @@ import scenes
 from ovrad_addon import settings as settings_mod
 from ovrad_addon.generate.build import build_atlas_and_overlaps
 from ovrad_addon.names import SHAPE_BALL
+from ovrad_addon.overlap import contacts as contact_mod
 from ovrad_addon.overlap.contacts import CUT, WHOLE, contact_flags, contacts
-from ovrad_addon.overlap.contacts import contacts as contact_mod
+from ovrad_addon.overlap.contacts import contacts as find_contacts
 from ovrad_addon.overlap.kept import KeptOverlaps, keep, kept_form, usable
 from ovrad_addon.overlap.matrix import overlap_matrix
 from ovrad_addon.radiosity.first_shot import solve
@@ -109,31 +110,44 @@ def test_the_scene_has_what_c_is_hard_on(room):
 
 
 def test_generate_integrates_the_c_a_solve_integrates(room):
-    """On the stored atlas, re-attached to the index a solve builds: the same C, to the last bit
-    (the dropped patches under the box are gone from both, and their neighbours' rows too)."""
+    """On the stored atlas, re-attached to the index a solve builds: the same C (the dropped
+    patches under the box are gone from both, and their neighbours' rows too), to rounding: 1e-12
+    relative, as Generate integrates the rows in other chunks (by object, by degree), and numpy's
+    reductions and vector loops may round a value otherwise in arrays of another shape, as the
+    CPU's SIMD width decides. A row integrated with another rule or patch differs by 1e-6 or more."""
     s, atlas, C = room
     index = both_sides_index(s, atlas=atlas)
-    again, support = overlap_matrix(attach_sheets(atlas, index), index, QUADRATURE)
-    assert abs(again - C).max() == 0.0
-    np.testing.assert_array_equal(support, atlas.support_area)
-    np.testing.assert_array_equal(C.diagonal(), atlas.effective_area)
+    again, support = overlap_matrix(
+        attach_sheets(atlas, index), index, QUADRATURE, find_contacts(attach_sheets(atlas, index), index)
+    )
+    assert abs(again - C).max() <= 1e-12 * abs(C).max()
+    np.testing.assert_allclose(support, atlas.support_area, rtol=1e-12)
+    np.testing.assert_allclose(C.diagonal(), atlas.effective_area, rtol=1e-12)
 
 
 def test_an_objects_rows_do_not_depend_on_the_other_objects(room):
     """Each object's block integrated with its own patches only, in a solve's order (the objects
-    in another order): the block Generate integrated with all of them."""
+    in another order): the block Generate integrated with all of them, to rounding (1e-12
+    relative, as in the test above)."""
     s, atlas, C = room
     order = np.concatenate([np.flatnonzero(atlas.source_object == o) for o in (4, 2, 0, 3, 1)])
     shuffled = atlas.select(order)
     index = both_sides_index(s, atlas=shuffled)
-    together, _ = overlap_matrix(attach_sheets(shuffled, index), index, QUADRATURE)
-    assert abs(together - C[order][:, order]).max() == 0.0
+    together, _ = overlap_matrix(
+        attach_sheets(shuffled, index),
+        index,
+        QUADRATURE,
+        find_contacts(attach_sheets(shuffled, index), index),
+    )
+    assert abs(together - C[order][:, order]).max() <= 1e-12 * abs(C).max()
     for o in (0, 3):
         sel = np.flatnonzero(atlas.source_object == o)
         alone = atlas.select(sel)
         index = both_sides_index(s, atlas=alone)
-        block, _ = overlap_matrix(attach_sheets(alone, index), index, QUADRATURE)
-        assert abs(block - C[sel][:, sel]).max() == 0.0
+        block, _ = overlap_matrix(
+            attach_sheets(alone, index), index, QUADRATURE, find_contacts(attach_sheets(alone, index), index)
+        )
+        assert abs(block - C[sel][:, sel]).max() <= 1e-12 * abs(C).max()
 
 
 def test_the_stored_atlas_is_a_fixed_point(room):
@@ -208,13 +222,18 @@ def test_stale_blocks_are_integrated_again(room):
     problem = prepare(s, replace(atlas, radii=radii), FAST, kept=kept)
     assert problem.kept == n - int(np.sum(atlas.source_object == 2))
     index = both_sides_index(s, atlas=atlas)
-    full, _ = overlap_matrix(attach_sheets(replace(atlas, radii=radii), index), index, QUADRATURE)
+    full, _ = overlap_matrix(
+        attach_sheets(replace(atlas, radii=radii), index),
+        index,
+        QUADRATURE,
+        find_contacts(attach_sheets(replace(atlas, radii=radii), index), index),
+    )
     assert abs(problem.C - full).max() <= 1e-6 * abs(full).max()
 
 
 def test_generate_gives_the_contacts_a_solve_finds(built):
     """The contact flags Generate integrated C with are those a solve's index finds for the stored
-    atlas, patch for patch (contact.contacts), in a scene with cut patches (the partition)."""
+    atlas, patch for patch (overlap.contacts.contacts), in a scene with cut patches (the partition)."""
     s, out = built
     index = both_sides_index(s, atlas=out.atlas)
     found = contacts(attach_sheets(out.atlas, index), index)
@@ -245,10 +264,10 @@ def test_a_solve_takes_the_kept_contacts(built, monkeypatch):
         m.setattr(contact_mod, "coarse_rule", lambda *a, **k: pytest.fail("contacts found again"))
         problem = prepare(s, atlas, FAST, kept=kept)
         assert problem.kept == len(atlas)
-        same(contacts(problem.atlas, problem.index), expected)
+        same(problem.contacts, expected)
         # a bake of a reopened file (locate) takes them too
         located = locate(s, atlas, kept=kept)
-        same(contacts(located.atlas, located.index), expected)
+        same(located.contacts, expected)
     # one patch of the partition edited: its block is integrated, its contacts found, again
     k = int(np.flatnonzero(atlas.source_object == 2)[0])
     radii = atlas.radii.copy()
@@ -256,7 +275,7 @@ def test_a_solve_takes_the_kept_contacts(built, monkeypatch):
     edited = replace(atlas, radii=radii)
     problem = prepare(s, edited, FAST, kept=kept)
     assert problem.kept == len(atlas) - int(np.sum(atlas.source_object == 2))
-    same(contacts(problem.atlas, problem.index), fresh(edited))
+    same(problem.contacts, fresh(edited))
     # kept flags edited: that block no longer fits
     bad = kept[2].contacts.copy()
     bad[0] ^= CUT
@@ -273,9 +292,16 @@ def test_a_large_atlas_keeps_the_coarser_rule_it_was_integrated_with(monkeypatch
     atlas, C, quadrature, _ = build_atlas_and_overlaps(s, AtlasSettings(patch_count=300))
     assert quadrature == COARSE_QUADRATURE
     index = both_sides_index(s, atlas=atlas)
-    coarse, _ = overlap_matrix(attach_sheets(atlas, index), index, COARSE_QUADRATURE)
-    fine, _ = overlap_matrix(attach_sheets(atlas, index), index, FINE_QUADRATURE)
-    assert abs(coarse - C).max() == 0.0
+    coarse, _ = overlap_matrix(
+        attach_sheets(atlas, index),
+        index,
+        COARSE_QUADRATURE,
+        find_contacts(attach_sheets(atlas, index), index),
+    )
+    fine, _ = overlap_matrix(
+        attach_sheets(atlas, index), index, FINE_QUADRATURE, find_contacts(attach_sheets(atlas, index), index)
+    )
+    assert abs(coarse - C).max() <= 1e-12 * abs(C).max()  # to rounding (other chunks)
     assert abs(fine - C).max() > 1e-6 * abs(C).max()  # the rules differ
     kept = [keep(s, atlas, C, quadrature, SETTINGS.crease_angle)]
     monkeypatch.setattr(settings_mod, "COARSE_FROM", 10**9)
@@ -307,6 +333,11 @@ def test_patches_holding_almost_none_of_their_support_are_dropped(monkeypatch):
     assert len(out.atlas) < len(plain.atlas) - np.sum(share < 0.12) // 2
     assert np.all(out.C.diagonal() >= 0.12 * out.atlas.support_area)
     index = both_sides_index(s, atlas=out.atlas)
-    again, support = overlap_matrix(attach_sheets(out.atlas, index), index, out.quadrature)
-    assert abs(again - out.C).max() == 0.0
-    np.testing.assert_array_equal(support, out.atlas.support_area)
+    again, support = overlap_matrix(
+        attach_sheets(out.atlas, index),
+        index,
+        out.quadrature,
+        find_contacts(attach_sheets(out.atlas, index), index),
+    )
+    assert abs(again - out.C).max() <= 1e-12 * abs(out.C).max()  # to rounding (other chunks)
+    np.testing.assert_allclose(support, out.atlas.support_area, rtol=1e-12)

@@ -1,4 +1,4 @@
-"""The patch grid (lookup.py) finds every patch that contains a point: alpha at points through the
+"""The patch grid (atlas/lookup.py) finds every patch that contains a point: alpha at points through the
 grid equals alpha from testing every (point, patch) pair, on flat, curved and mixed-density scenes,
 including points exactly on patch rims."""
 
@@ -9,6 +9,7 @@ import scenes
 from ovrad_addon.atlas.index import index_surfaces
 from ovrad_addon.atlas.support import alpha_from_pairs, pair_beta
 from ovrad_addon.generate.build import build_atlas
+from ovrad_addon.overlap.contacts import contacts as find_contacts
 from ovrad_addon.overlap.contacts import seen_members
 from ovrad_addon.overlap.queries import alpha_at
 from ovrad_addon.settings import AtlasSettings, ObjectSettings
@@ -16,14 +17,14 @@ from ovrad_addon.settings import AtlasSettings, ObjectSettings
 
 def brute_alpha(atlas, index, pts, tri, side):
     """alpha from every (point, patch) pair: no candidate search at all (then the same contact rule,
-    contact.py, as alpha_at)."""
+    overlap/contacts.py, as alpha_at)."""
     m, n = len(pts), len(atlas)
     rows = np.repeat(np.arange(m), n)
     cols = np.tile(np.arange(n), m)
     sheets = index.sheet_of(tri, side)
     nrm = index.charts.normals[tri] * side[:, None]
     member, b = pair_beta(atlas, cols, pts[rows], nrm[rows], sheets[rows], atlas.beta)
-    member = seen_members(atlas, index, rows, cols, pts[rows], member)
+    member = seen_members(atlas, index, find_contacts(atlas, index), rows, cols, pts[rows], member)
     return alpha_from_pairs(rows, cols, member, b, (m, n))
 
 
@@ -66,7 +67,7 @@ def test_grid_finds_every_covering_patch(name, settings):
     checked = 0
     for side in (1, -1):
         sides = np.full(len(tri), side)
-        got = alpha_at(atlas, index, pts, tri, sides).toarray()
+        got = alpha_at(atlas, index, find_contacts(atlas, index), pts, tri, sides).toarray()
         want = brute_alpha(atlas, index, pts, tri, sides).toarray()
         np.testing.assert_array_equal(got != 0, want != 0)
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)

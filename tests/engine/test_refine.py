@@ -1,4 +1,4 @@
-"""Adaptive patches (refine.py): refining keeps alpha a partition of unity, C's row sums, the
+"""Adaptive patches (generate/refine.py): refining keeps alpha a partition of unity, C's row sums, the
 furnace exact, and lowers the error where the solution varies (a lamp's shadow edge, against its
 closed form)."""
 
@@ -63,7 +63,9 @@ def test_refined_atlas_is_a_partition_of_unity_with_exact_row_sums(beta):
     assert len(refined.atlas) > len(problem.atlas) + 2 * k
     pts, tri = scenes.sample_surface(s, 50_000, seed=5)
     on = refined.index.sheet_of(tri, np.ones(len(tri), np.int64)) >= 0
-    a = alpha_at(refined.atlas, refined.index, pts[on], tri[on], np.ones(on.sum(), np.int64))
+    a = alpha_at(
+        refined.atlas, refined.index, refined.contacts, pts[on], tri[on], np.ones(on.sum(), np.int64)
+    )
     total = np.asarray(a.sum(axis=1)).ravel()
     assert total.min() > 0.5  # no hole opened by removing the parents
     np.testing.assert_allclose(total, 1.0, atol=1e-9)
@@ -113,7 +115,7 @@ def test_furnace_stays_exact_with_refinement():
     )
     assert replaced[0] > 0.3 * len(atlas) and len(problem.atlas) > len(atlas)
     pts, tri = scenes.sample_surface(s, 5000, seed=6)
-    a = alpha_at(problem.atlas, problem.index, pts, tri, np.ones(len(tri), np.int64))
+    a = alpha_at(problem.atlas, problem.index, problem.contacts, pts, tri, np.ones(len(tri), np.int64))
     # radiance B / pi = L_e / (1 - rho) everywhere, children and untouched patches alike
     np.testing.assert_allclose(reconstruct(a, state.radiosity) / np.pi, 2.0 / (1 - 0.9), rtol=2e-4)
 
@@ -137,7 +139,7 @@ def test_refining_at_a_shadow_edge_lowers_the_error_there(beta):
         atlas = build_atlas(s, AtlasSettings(patch_count=count, beta=beta))
         problem, state, _ = solve_adaptive(s, atlas, (lamp,), SolveSettings(min_rays=1 << 18), passes=passes)
         tri = problem.index.rays.closest_hit(pts + [0, 0, 1e-3], np.tile([0, 0, -1.0], (len(pts), 1)), 1.0)[1]
-        a = alpha_at(problem.atlas, problem.index, pts, tri, np.ones(len(pts), np.int64))
+        a = alpha_at(problem.atlas, problem.index, problem.contacts, pts, tri, np.ones(len(pts), np.int64))
         got = reconstruct(a, state.radiosity)[:, 0] / np.pi
         error = np.sqrt(np.mean((got[edge] - want[edge]) ** 2)) / np.sqrt(np.mean(want**2))
         return error, problem.atlas

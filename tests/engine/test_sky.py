@@ -1,4 +1,5 @@
-"""World light (sky.py): constant colour and equirectangular maps against closed forms and direct sums."""
+"""World light (light/sky.py): constant colour and equirectangular maps against closed forms and
+direct sums."""
 
 import numpy as np
 import pytest
@@ -15,7 +16,7 @@ UP = np.array([[0.0, 0.0, 1.0]])
 
 def _pixel_grid(h, w):
     """Pixel-centre directions (h, w, 3) and solid angles (h, w) of Cycles' equirectangular layout,
-    computed here from the layout's definition (independently of sky.py)."""
+    computed here from the layout's definition (independently of light/sky.py)."""
     el = ((np.arange(h) + 0.5) / h - 0.5) * np.pi
     phi = (0.5 - (np.arange(w) + 0.5) / w) * 2 * np.pi
     E, P = np.meshgrid(el, phi, indexing="ij")

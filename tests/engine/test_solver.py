@@ -10,6 +10,7 @@ from ovrad_addon.atlas.index import index_surfaces
 from ovrad_addon.errors import OvradError
 from ovrad_addon.generate.build import build_atlas
 from ovrad_addon.light.lamps import area_side
+from ovrad_addon.overlap.contacts import contacts as find_contacts
 from ovrad_addon.overlap.matrix import overlap_matrix
 from ovrad_addon.overlap.queries import alpha_at, patch_average, reconstruct
 from ovrad_addon.radiosity.first_shot import within_budget
@@ -23,15 +24,21 @@ def prepare(surfaces, **settings):
     st = AtlasSettings(**settings)
     atlas = build_atlas(surfaces, st)
     index = index_surfaces(surfaces, st)
-    C, support = overlap_matrix(atlas, index, st.rule_order(len(atlas)))
-    T = gather_transport(replace(atlas, support_area=support), index)
-    E = np.pi * patch_average(atlas, index, surfaces.emission)  # exitance from radiance
+    C, support = overlap_matrix(atlas, index, st.rule_order(len(atlas)), find_contacts(atlas, index))
+    T = gather_transport(
+        replace(atlas, support_area=support),
+        index,
+        find_contacts(replace(atlas, support_area=support), index),
+    )
+    E = np.pi * patch_average(
+        atlas, index, find_contacts(atlas, index), surfaces.emission
+    )  # exitance from radiance
     return atlas, index, C, T, E
 
 
 def radiance_at_samples(atlas, index, surfaces, B, count=20_000):
     pts, tri = scenes.sample_surface(surfaces, count, seed=11)
-    return reconstruct(alpha_at(atlas, index, pts, tri, 1), B) / np.pi
+    return reconstruct(alpha_at(atlas, index, find_contacts(atlas, index), pts, tri, 1), B) / np.pi
 
 
 def uniform(s, rho, le=1.0):
@@ -195,11 +202,16 @@ def test_a_ray_budget_keeps_rows_closed_and_the_furnace_exact(max_rays):
     st = AtlasSettings(patch_count=400)
     atlas = build_atlas(s, st)
     index = index_surfaces(s, st)
-    C, support = overlap_matrix(atlas, index, st.rule_order(len(atlas)))
-    T = gather_transport(replace(atlas, support_area=support), index, max_rays=max_rays)
+    C, support = overlap_matrix(atlas, index, st.rule_order(len(atlas)), find_contacts(atlas, index))
+    T = gather_transport(
+        replace(atlas, support_area=support),
+        index,
+        find_contacts(replace(atlas, support_area=support), index),
+        max_rays=max_rays,
+    )
     assert T.rays <= max_rays and T.rays >= max_rays // 4
     np.testing.assert_allclose(np.asarray(T.geometric.sum(axis=1)).ravel(), support, rtol=1e-9)
-    E = np.pi * patch_average(atlas, index, s.emission)
+    E = np.pi * patch_average(atlas, index, find_contacts(atlas, index), s.emission)
     state = solve_progressive(C, T, E, tolerance=1e-6)
     L = radiance_at_samples(atlas, index, s, state.radiosity, 5000)
     np.testing.assert_allclose(L, 1.0 / (1.0 - 0.8), rtol=2e-3)
@@ -254,9 +266,12 @@ def test_a_cancelled_transport_leaves_no_memory_behind(far):
     st = AtlasSettings(patch_count=300)
     atlas = build_atlas(s, st)
     index = index_surfaces(s, st)
-    _, support = overlap_matrix(atlas, index, st.rule_order(len(atlas)))
+    _, support = overlap_matrix(atlas, index, st.rule_order(len(atlas)), find_contacts(atlas, index))
     atlas = replace(atlas, support_area=support)
-    _ = atlas.grid, gather_transport(atlas, index, min_rays=1 << 14, far=far)  # caches built before measuring
+    _ = (
+        atlas.grid,
+        gather_transport(atlas, index, find_contacts(atlas, index), min_rays=1 << 14, far=far),
+    )  # caches built before measuring
 
     def cancel_halfway(fraction):
         if fraction > 0.5:
@@ -266,7 +281,9 @@ def test_a_cancelled_transport_leaves_no_memory_behind(far):
     tracemalloc.start()
     try:
         with pytest.raises(OvradError, match="cancelled"):
-            gather_transport(atlas, index, min_rays=1 << 22, progress=cancel_halfway, far=far)
+            gather_transport(
+                atlas, index, find_contacts(atlas, index), min_rays=1 << 22, progress=cancel_halfway, far=far
+            )
         gc.collect()
         current, peak = tracemalloc.get_traced_memory()
     finally:

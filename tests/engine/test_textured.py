@@ -7,7 +7,7 @@ from reference import analytic
 from scipy.ndimage import map_coordinates
 
 import scenes
-from ovrad_addon.bake.points import radiance_at
+from ovrad_addon.bake.points import BakeRequest, radiance_at
 from ovrad_addon.generate.build import build_atlas
 from ovrad_addon.light.lamps import Lamp
 from ovrad_addon.radiosity.first_shot import direct_light, solve
@@ -31,7 +31,7 @@ def uv_of(points):
 
 
 def reference_albedo(image, points):
-    """Bilinear between texel centres with wrap-around, by scipy (independent of albedo.py)."""
+    """Bilinear between texel centres with wrap-around, by scipy (independent of scene/albedo.py)."""
     h, w = image.shape[:2]
     uv = uv_of(points)
     coords = [uv[:, 1] * h - 0.5, uv[:, 0] * w - 0.5]  # (row, column) in texel units
@@ -64,7 +64,7 @@ def test_surfaces_read_the_texture_and_keep_each_triangles_mean(textured_plane):
     pts[:, :2] = rng.uniform(-2, 2, size=(300, 2))
     tri = np.arange(len(pts)) % len(s.triangles)  # any triangle of the plane: one shared UV map
     np.testing.assert_allclose(s.reflectance_at(tri, pts), reference_albedo(image, pts), atol=1e-12)
-    # the constant is no longer the given 0.5 but each triangle's mean albedo (a 1 m quad's half)
+    # the constant is not the given 0.5 but each triangle's mean albedo (a 1 m quad's half)
     assert not np.allclose(s.reflectance, 0.5)
     for k in range(len(s.triangles)):
         a, b, c = s.corners[k]
@@ -84,7 +84,7 @@ def test_radiance_is_the_albedo_at_each_point_times_the_lamps_irradiance(texture
     pts[:, :2] = rng.uniform(-1.5, 1.5, size=(400, 2))
     tri = problem.index.rays.closest_hit(pts + [0, 0, 1e-3], np.tile([0, 0, -1.0], (len(pts), 1)), 1.0)[1]
     light = direct_light(problem, (LAMP,), SETTINGS)
-    L = radiance_at(problem, state.radiosity, pts, tri, 1, state.first_shot, light)
+    L = radiance_at(problem, BakeRequest(state.radiosity, state.first_shot, light), pts, tri, 1)
     E = analytic.point_lamp_irradiance(LAMP.power, LAMP.position, pts, np.tile([0, 0, 1.0], (len(pts), 1)))
     # a lone plane reflects to nowhere: every point reflects its own albedo x the lamp's light
     np.testing.assert_allclose(L, reference_albedo(image, pts) * E[:, None] / np.pi, rtol=1e-9)
