@@ -75,6 +75,41 @@ def textured(name: str, image) -> bpy.types.Material:
     return mat
 
 
+def painted_material(name: str, attribute: str) -> bpy.types.Material:
+    """Principled BSDF whose Base Color is a Color Attribute node reading `attribute` ('' = the
+    mesh's render colour attribute), as vertex-painted game art is."""
+    mat = diffuse(name, (0.8, 0.8, 0.8))
+    tree = mat.node_tree
+    bsdf = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeBsdfPrincipled")
+    node = tree.nodes.new("ShaderNodeVertexColor")
+    node.layer_name = attribute
+    tree.links.new(node.outputs["Color"], bsdf.inputs["Base Color"])
+    return mat
+
+
+def paint(me, name: str, data_type: str, domain: str, colour) -> None:
+    """A colour attribute on a mesh, each vertex or face corner coloured colour(position (k, 3))
+    (k, 3) in linear RGB, made the mesh's render colour attribute."""
+    attr = me.color_attributes.new(name, data_type, domain)
+    co = np.empty(3 * len(me.vertices))
+    me.vertices.foreach_get("co", co)
+    co = co.reshape(-1, 3)
+    if domain == "CORNER":
+        loops = np.empty(len(me.loops), np.int32)
+        me.loops.foreach_get("vertex_index", loops)
+        # per corner: the corner's vertex, pulled a little toward its face's centre, so that a
+        # vertex's corners differ between faces as painted corners do
+        poly = np.empty(len(me.loops), np.int32)
+        for p in me.polygons:
+            poly[p.loop_start : p.loop_start + p.loop_total] = p.index
+        centre = np.array([p.center[:] for p in me.polygons])
+        co = 0.7 * co[loops] + 0.3 * centre[poly]
+    rgb = np.clip(np.asarray(colour(co), np.float32), 0.0, 1.0)
+    attr.data.foreach_set("color", np.column_stack([rgb, np.ones(len(rgb), np.float32)]).ravel())
+    me.color_attributes.render_color_index = me.color_attributes.find(name)
+    me.color_attributes.active_color_index = me.color_attributes.find(name)
+
+
 def world(scene, colour=(0.0, 0.0, 0.0), strength: float = 0.0, image=None) -> None:
     """The world: a constant Background colour, or an equirectangular Environment Texture."""
     w = bpy.data.worlds.new("World")
@@ -437,6 +472,37 @@ def textured_floor():
     return scene
 
 
+def painted():
+    """A room whose floor's Base Color is a named byte colour attribute per face corner (stripes of
+    dark and light paint, mean about 0.5), and a box whose Base Color reads the render colour
+    attribute, float colours per vertex (a gradient)."""
+    scene = _new_scene("painted")
+    white = diffuse("White", WHITE)
+    w, d, h = 2.4, 2.4, 2.2
+    faces = room_faces(w, d, h)
+    floor = faces.pop("floor")
+    mesh("Room", list(faces.values()), white)
+    fl = mesh("Floor", [floor], painted_material("FloorPaint", "Paint"))
+
+    def stripes(p):
+        s = 0.5 + 0.4 * np.sin(2.0 * np.pi * p[:, 0] / 0.8)
+        return np.column_stack([s, 0.6 * s + 0.2, 0.9 - 0.7 * s])
+
+    paint(fl.data, "Paint", "BYTE_COLOR", "CORNER", stripes)
+    box = box_mesh("Box", (0.6, 0.6, 0.6), painted_material("BoxPaint", ""))
+    paint(
+        box,
+        "Col",
+        "FLOAT_COLOR",
+        "POINT",
+        lambda p: np.column_stack([p[:, 2] / 0.6, 0.3 + 0 * p[:, 0], 1 - p[:, 2] / 0.6]),
+    )
+    place("Box", box, (1.5, 1.0, 0.0), rotation_z=0.3)
+    area_lamp(scene, "Lamp", (1.0, 1.4, h - 0.05), 0.5, 180.0)
+    camera(scene, (0.2, 0.1, 1.6), (1.6, 1.6, 0.4))
+    return scene
+
+
 def _window_room(scene):
     white = diffuse("White", WHITE)
     w, d, h = 2.4, 2.4, 2.2
@@ -472,6 +538,7 @@ SCENES = {
     "duplicates": duplicates,
     "instances": instances,
     "textured": textured_floor,
+    "painted": painted,
     "sky_constant": sky_constant,
     "sky_hdr": sky_hdr,
 }

@@ -4,8 +4,10 @@ Read: Principled BSDF (Base Color; Emission Color x Strength), Diffuse BSDF (Col
 (Color x Strength, no reflection), through Reroute nodes. A Base Color (or Color) driven by an
 Image Texture, directly or through a UV Map or Texture Coordinate (UV) node, is read as a texture:
 its pixels in linear RGB (an 8-bit sRGB image decoded as Cycles decodes it), sampled through that
-UV map. Anything else that drives a colour gives the material's viewport colour and one warning
-naming the material.
+UV map. A Base Color (or Color) driven by a Color Attribute node is read as paint: the mesh's
+colour attribute of that name (or its render colour attribute), per face corner, interpolated
+across each triangle as Cycles does. Anything else that drives a colour gives the material's
+viewport colour and one warning naming the material.
 """
 
 from __future__ import annotations
@@ -40,12 +42,21 @@ class MaterialTexture:
 
 
 @dataclass(frozen=True)
+class MaterialPaint:
+    """An albedo painted into a colour attribute: its name ('' = the mesh's render colour attribute)."""
+
+    attribute: str
+
+
+@dataclass(frozen=True)
 class MaterialLight:
-    """reflectance (3,) (the texture's mean where there is one), emission (3,) radiance, texture."""
+    """reflectance (3,) (the texture's mean where there is one; for paint, what a mesh without the
+    attribute gets), emission (3,) radiance, texture, paint."""
 
     reflectance: np.ndarray
     emission: np.ndarray
     texture: MaterialTexture | None = None
+    paint: MaterialPaint | None = None
 
 
 def srgb_to_linear(c: np.ndarray) -> np.ndarray:
@@ -126,13 +137,14 @@ def _uv_of(tex_node) -> str | None:
     return None
 
 
-def _colour(
-    socket, what: str, material, warnings: list[str]
-) -> tuple[np.ndarray | None, MaterialTexture | None]:
-    """(constant (3,), texture) of a colour socket; (None, None) with a warning if neither can be read."""
+def _colour(socket, what: str, material, warnings: list[str]):
+    """(constant (3,), texture or paint) of a colour socket; (None, None) with a warning if neither
+    can be read."""
     if not socket.is_linked:
         return np.array(socket.default_value[:3], float), None
-    node, _ = upstream(socket)
+    node, out = upstream(socket)
+    if node is not None and node.bl_idname == "ShaderNodeVertexColor" and out.name == "Color":
+        return None, MaterialPaint(node.layer_name)
     if node is not None and node.bl_idname == "ShaderNodeTexImage" and node.image is not None:
         uv = _uv_of(node)
         if uv is not None and node.projection == "FLAT":
@@ -147,7 +159,7 @@ def _colour(
     kind = node.bl_label if node is not None else "nodes"
     warnings.append(
         f"material '{material.name}': {what} is driven by a {kind} node; using the material's viewport "
-        "colour (read: a constant, or an Image Texture through a UV map)"
+        "colour (read: a constant, an Image Texture through a UV map, or a Color Attribute)"
     )
     return None, None
 
@@ -166,10 +178,13 @@ def read_material(material, warnings: list[str]) -> MaterialLight:
         return MaterialLight(_viewport(material), black)
     node = _surface_shader(material)
     kind = node.bl_idname if node is not None else None
-    rho, em, tex = np.array(DEFAULT_REFLECTANCE), black, None
+    rho, em, tex, paint = np.array(DEFAULT_REFLECTANCE), black, None, None
     if kind in ("ShaderNodeBsdfPrincipled", "ShaderNodeBsdfDiffuse"):
         socket = node.inputs["Base Color" if kind == "ShaderNodeBsdfPrincipled" else "Color"]
         const, tex = _colour(socket, socket.name, material, warnings)
+        if isinstance(tex, MaterialPaint):
+            # a mesh without the attribute reads black there, as Cycles renders a missing attribute
+            tex, paint, const = None, tex, np.zeros(3)
         rho = const if const is not None else _viewport(material)
         if kind == "ShaderNodeBsdfPrincipled":
             em = _emission(
@@ -192,7 +207,7 @@ def read_material(material, warnings: list[str]) -> MaterialLight:
             f"material '{material.name}': reflectance {tuple(np.round(rho, 3))} clamped to [0, 1]"
         )
         rho = np.clip(rho, 0.0, 1.0)
-    return MaterialLight(rho, np.maximum(em, 0.0), tex)
+    return MaterialLight(rho, np.maximum(em, 0.0), tex, paint)
 
 
 def _emission(colour, strength, material, warnings: list[str]) -> np.ndarray:

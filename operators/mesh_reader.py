@@ -21,7 +21,9 @@ class MeshData:
     material_index (T,) int64; loop_vertices (L,) int64 the vertex of each loop; uv (T, 3, 2)
     float64 of the chosen UV map or None; materials: the material of each slot (object slots
     first, else the mesh's), possibly empty; loop_uvs: every UV map's (L, 2) float32 per-loop
-    coordinates by name, when read (read_mesh(all_uvs=True)), and active_uv the active render map.
+    coordinates by name, when read (read_mesh(all_uvs=True)), and active_uv the active render map;
+    loop_colors likewise every colour attribute's (L, 3) float32 linear RGB per loop (a POINT one
+    taken at each loop's vertex), and render_color the render colour attribute's name.
     """
 
     vertices: np.ndarray
@@ -35,6 +37,8 @@ class MeshData:
     materials: tuple = ()
     loop_uvs: dict | None = None
     active_uv: str = ""
+    loop_colors: dict | None = None
+    render_color: str = ""
 
     @property
     def corners(self) -> np.ndarray:
@@ -51,6 +55,14 @@ class MeshData:
         if not self.has_uv_map(uv_map):
             return None
         return self.loop_uvs[uv_map or self.active_uv][self.loops].astype(np.float64)
+
+    def triangle_colors(self, name: str) -> np.ndarray | None:
+        """(T, 3, 3) float64 linear RGB of each triangle corner in the colour attribute `name` ('' =
+        the render colour attribute); None if the mesh has no such attribute (or they were not read)."""
+        key = name or self.render_color
+        if not self.loop_colors or key not in self.loop_colors:
+            return None
+        return self.loop_colors[key][self.loops].astype(np.float64)
 
     def bake_uvs(self, uv_map: str, owner: str) -> np.ndarray:
         """(T, 3, 2) float64 UVs of the map a bake goes through (see uv_map_name; needs the maps
@@ -126,7 +138,30 @@ def read_mesh(
             loop_uvs={lay.name: _get(lay.data, "uv", 2, np.float32) for lay in mesh.uv_layers},
             active_uv=_active_uv(mesh.uv_layers).name,
         )
+    if all_uvs and len(mesh.color_attributes):
+        local = replace(
+            local, loop_colors=_loop_colors(mesh, local.loop_vertices), render_color=_render_color(mesh)
+        )
     return placed(local, matrix_world)
+
+
+def _loop_colors(mesh, loop_vertex: np.ndarray) -> dict:
+    """Every colour attribute of a mesh as (L, 3) float32 linear RGB per loop (`color` is scene
+    linear for byte and float colours alike); ovrad's own baked attributes are no paint."""
+    out = {}
+    for attr in mesh.color_attributes:
+        if attr.domain not in ("POINT", "CORNER") or attr.name.startswith("ovrad_"):
+            continue
+        rgb = _get(attr.data, "color", 4, np.float32)[:, :3]
+        out[attr.name] = rgb[loop_vertex] if attr.domain == "POINT" else rgb
+    return out
+
+
+def _render_color(mesh) -> str:
+    """The name of the colour attribute a Color Attribute node without a name reads ('' if none)."""
+    attrs = mesh.color_attributes
+    k = attrs.render_color_index
+    return attrs[k].name if 0 <= k < len(attrs) else ""
 
 
 def vertex_positions(mesh, matrix_world) -> np.ndarray:

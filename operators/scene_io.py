@@ -31,7 +31,8 @@ class SceneMeshes:
 class _Mesh:
     """One object's arrays for read_scene: vertices (V, 3) world, triangles (T, 3), reflectance
     (T, 3), emission (T, 3); textures: (image name, pixels) of its albedo maps, image_of (T,) the
-    map of each triangle (-1: none) and uv (T, 3, 2) (None when no triangle has a map)."""
+    map of each triangle (-1: none) and uv (T, 3, 2) (None when no triangle has a map); corners
+    (T, 3, 3) the painted colour at each triangle corner, NaN where not painted (None: nowhere)."""
 
     vertices: np.ndarray
     triangles: np.ndarray
@@ -40,6 +41,7 @@ class _Mesh:
     textures: list = field(default_factory=list)
     image_of: np.ndarray | None = None
     uv: np.ndarray | None = None
+    corners: np.ndarray | None = None
 
 
 def _read_mesh(data, warnings: list[str], cache: dict) -> _Colors:
@@ -51,6 +53,18 @@ def _read_mesh(data, warnings: list[str], cache: dict) -> _Colors:
         np.array([m.reflectance for m in lights])[slot], np.array([m.emission for m in lights])[slot]
     )
     for k, m in enumerate(lights):
+        if m.paint is not None and np.any(slot == k):
+            if data.triangle_colors(m.paint.attribute) is None:
+                which = (
+                    f"a colour attribute '{m.paint.attribute}'" if m.paint.attribute else "a colour attribute"
+                )
+                name = getattr(data.materials[k], "name", "?") if k < len(data.materials) else "?"
+                warnings.append(
+                    f"a mesh with material '{name}' has no {which}: its Base Color reads black there, as "
+                    "Cycles renders it"
+                )
+            else:
+                out.painted.append((k, m.paint.attribute))
         if m.texture is None or not np.any(slot == k):
             continue
         if not data.has_uv_map(m.texture.uv_map):
@@ -69,17 +83,24 @@ def _read_mesh(data, warnings: list[str], cache: dict) -> _Colors:
 @dataclass
 class _Colors:
     """reflectance (T, 3) and emission (T, 3) of a mesh's triangles; textured: (material slot,
-    MaterialTexture) of its image-textured slots that have UVs; slot (T,) each triangle's slot."""
+    MaterialTexture) of its image-textured slots that have UVs; painted: (material slot, colour
+    attribute name) of its painted slots whose mesh has that attribute; slot (T,) each triangle's slot."""
 
     reflectance: np.ndarray
     emission: np.ndarray
     textured: list = field(default_factory=list)
+    painted: list = field(default_factory=list)
     slot: np.ndarray | None = None
 
 
 def _part(data, colors: _Colors) -> _Mesh:
     """A placed mesh (world space) with its colours and, for textured slots, its UVs."""
     part = _Mesh(data.vertices, data.triangles, colors.reflectance, colors.emission)
+    if colors.painted:
+        part.corners = np.full((len(data.triangles), 3, 3), np.nan)
+        for k, attribute in colors.painted:
+            on = colors.slot == k
+            part.corners[on] = data.triangle_colors(attribute)[on]
     if not colors.textured:
         return part
     part.image_of = np.full(len(data.triangles), -1, np.int64)
@@ -113,8 +134,9 @@ def _material(material, warnings: list[str], cache: dict) -> materials.MaterialL
 
 
 def _albedo(parts: list[_Mesh]) -> TextureAlbedo | None:
-    """One TextureAlbedo over the triangles of all parts, images shared by name; None if no map."""
-    if not any(p.textures for p in parts):
+    """One TextureAlbedo over the triangles of all parts, images shared by name; None if no map
+    and no paint."""
+    if not any(p.textures or p.corners is not None for p in parts):
         return None
     images: dict[str, int] = {}
     pixels = []
@@ -135,11 +157,17 @@ def _albedo(parts: list[_Mesh]) -> TextureAlbedo | None:
         image_of.append(remap[p.image_of])
         uv.append(p.uv)
     image_of = np.concatenate(image_of)
+    corners = None
+    if any(p.corners is not None for p in parts):
+        corners = np.concatenate(
+            [p.corners if p.corners is not None else np.full((len(p.triangles), 3, 3), np.nan) for p in parts]
+        )
     return TextureAlbedo(
         images=tuple(pixels),
         image_of=image_of,
         uv=np.concatenate(uv),
         tint=np.ones((len(image_of), 3)),
+        corners=corners,
     )
 
 

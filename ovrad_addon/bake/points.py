@@ -180,7 +180,7 @@ def _textured(surfaces: Surfaces, triangles: np.ndarray) -> np.ndarray:
     """(m,) bool: which of the triangles have an albedo texture."""
     if surfaces.albedo is None:
         return np.zeros(len(triangles), bool)
-    return surfaces.albedo.image_of[triangles] >= 0
+    return surfaces.albedo.varies[triangles]
 
 
 def irradiance_at(problem: Problem, request: BakeRequest, points, triangles, sides=1) -> np.ndarray:

@@ -1,10 +1,13 @@
-"""Textured albedo: image textures on triangles, sampled where light is reflected.
+"""Varying albedo: image textures and painted colours on triangles, sampled where light is reflected.
 
-A surface whose colour comes from an image has no single reflectance: the bake needs the albedo
+A surface whose colour comes from an image or from a colour attribute (vertex paint) has no single
+reflectance: the bake needs the albedo
 at each vertex or texel, and the transport the mean albedo over each patch's support (taken at
 the patch's receiver points). Images are linear RGB (the reader converts sRGB as Cycles does),
 sampled bilinearly between texel centres with wrap-around, which is what Cycles' Image Texture
-does with its default Linear interpolation and Repeat extension.
+does with its default Linear interpolation and Repeat extension. Painted colours are given per
+triangle corner (linear RGB) and interpolated linearly across the triangle, as Cycles interpolates
+a Color Attribute.
 """
 
 from __future__ import annotations
@@ -21,30 +24,50 @@ from ..geometry import subtriangle_centroids
 @dataclass(frozen=True, eq=False)
 class TextureAlbedo:
     """images: linear RGB albedo maps, each (h, w, 3), row 0 at the bottom (Blender's order);
-    image_of: (T,) int64, the map of each triangle (-1: its constant reflectance); uv: (T, 3, 2)
-    texture coordinates of each triangle's corners; tint: (T, 3) factor applied to the map (1 for a
-    plain texture)."""
+    image_of: (T,) int64, the map of each triangle (-1: none); uv: (T, 3, 2) texture coordinates of
+    each triangle's corners; tint: (T, 3) factor applied to the map (1 for a plain texture);
+    corners: None, or (T, 3, 3) linear RGB painted at each triangle corner, used where image_of is
+    -1 and the colours are finite (NaN: the triangle is not painted). A triangle with neither has
+    its constant reflectance."""
 
     images: tuple = field(repr=False)
     image_of: np.ndarray = field(repr=False)
     uv: np.ndarray = field(repr=False)
     tint: np.ndarray = field(repr=False)
+    corners: np.ndarray | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         n = len(self.image_of)
         if self.uv.shape != (n, 3, 2) or self.tint.shape != (n, 3):
             raise OvradError("texture albedo: uv must be (T, 3, 2) and tint (T, 3)")
+        if self.corners is not None and self.corners.shape != (n, 3, 3):
+            raise OvradError("painted albedo: corner colours must be (T, 3, 3)")
         if n and self.image_of.max(initial=-1) >= len(self.images):
             raise OvradError("texture albedo: a triangle refers to a missing image")
         for img in self.images:
             if img.ndim != 3 or img.shape[2] != 3 or min(img.shape[:2]) < 1:
                 raise OvradError(f"texture albedo: images must be (h, w, 3), got {img.shape}")
 
+    @property
+    def painted(self) -> np.ndarray:
+        """(T,) bool: the triangles whose albedo is their corners' painted colours."""
+        if self.corners is None:
+            return np.zeros(len(self.image_of), bool)
+        return (self.image_of < 0) & np.all(np.isfinite(self.corners), axis=(1, 2))
+
+    @property
+    def varies(self) -> np.ndarray:
+        """(T,) bool: the triangles whose albedo varies over them (a texture or paint)."""
+        return (self.image_of >= 0) | self.painted
+
     def key(self) -> bytes:
-        """Bytes that change when any map, assignment or UV changes (for cache keys)."""
+        """Bytes that change when any map, assignment, UV or paint changes (for cache keys)."""
         h = hasher(16)
         for a in (*self.images, self.image_of, self.uv, self.tint):
             add_array(h, a, dtype=False)
+        if self.corners is not None:  # a key without paint stays what it was
+            h.update(b"painted")
+            add_array(h, self.corners, dtype=False)
         return h.digest()
 
 
@@ -89,12 +112,19 @@ def albedo_at(
     triangles: np.ndarray,
     points: np.ndarray,
 ) -> np.ndarray:
-    """Albedo (m, 3) at surface points on `triangles` (m,): the texture where the triangle has one,
-    else the triangle's constant reflectance (T, 3). corners: (T, 3, 3) of all triangles."""
+    """Albedo (m, 3) at surface points on `triangles` (m,): the texture or the paint where the
+    triangle has one, else the triangle's constant reflectance (T, 3). corners: (T, 3, 3) of all
+    triangles' positions."""
     tri = np.asarray(triangles, np.int64)
     out = np.asarray(reflectance, np.float64)[tri].copy()
     if textures is None or len(tri) == 0:
         return out
+    painted = np.flatnonzero(textures.painted[tri])
+    if len(painted):
+        t = tri[painted]
+        bary = barycentric(corners[t], np.asarray(points, np.float64).reshape(-1, 3)[painted])
+        colour = np.einsum("mk,mkj->mj", bary, textures.corners[t]) * textures.tint[t]
+        out[painted] = np.clip(colour, 0.0, 1.0)
     which = textures.image_of[tri]
     for k in np.unique(which[which >= 0]):
         sel = np.flatnonzero(which == k)
@@ -110,11 +140,11 @@ def triangle_means(
     textures: TextureAlbedo, reflectance: np.ndarray, corners: np.ndarray, k: int = 4
 ) -> np.ndarray:
     """Each triangle's mean albedo (T, 3) over the centroids of its k^2 sub-triangles (the constant
-    reflectance where it has no texture): what emission-free per-triangle code paths use."""
+    reflectance where it has neither texture nor paint): what per-triangle code paths use."""
     uv = subtriangle_centroids(k)
     bary = np.column_stack([1 - uv.sum(axis=1), uv])  # (s, 3)
     out = np.asarray(reflectance, np.float64).copy()
-    tri = np.flatnonzero(textures.image_of >= 0)
+    tri = np.flatnonzero(textures.varies)
     if len(tri) == 0:
         return out
     pts = np.einsum("sk,tkj->tsj", bary, corners[tri]).reshape(-1, 3)

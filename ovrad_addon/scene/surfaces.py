@@ -77,7 +77,7 @@ class Surfaces:
         if albedo is not None:
             if len(albedo.image_of) != len(t):
                 raise OvradError("texture albedo must describe every triangle (image_of -1 where none)")
-            if not np.any(albedo.image_of >= 0):
+            if not np.any(albedo.varies):
                 albedo = None
             else:
                 rho = triangle_means(albedo, rho, v[t])
@@ -94,7 +94,7 @@ class Surfaces:
         """Albedo (m, 3) at surface points (m, 3) on triangles (m,): the texture where a triangle
         has one, else its constant reflectance."""
         tri = np.asarray(triangles, np.int64)
-        if self.albedo is None or not np.any(self.albedo.image_of[tri] >= 0):
+        if self.albedo is None or not np.any(self.albedo.varies[tri]):
             return self.reflectance[tri]
         return albedo_at(self.albedo, self.reflectance, self.corners, tri, points)
 

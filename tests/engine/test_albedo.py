@@ -77,3 +77,43 @@ def test_triangle_mean_of_a_linear_map_is_its_value_at_the_centroid():
 def test_inconsistent_texture_tables_are_refused():
     with pytest.raises(OvradError):
         TextureAlbedo((_ramp(),), np.array([0, 1]), np.zeros((2, 3, 2)), np.ones((2, 3)))
+
+
+def _painted_triangles():
+    """Two triangles: the first painted (a colour per corner), the second not (NaN)."""
+    corners = np.array([[[0.0, 0, 0], [2.0, 0, 0], [0.0, 1, 0]], [[3.0, 0, 0], [4.0, 0, 0], [3.0, 1, 0]]])
+    paint = np.full((2, 3, 3), np.nan)
+    paint[0] = [[0.9, 0.1, 0.2], [0.1, 0.8, 0.3], [0.3, 0.3, 0.7]]
+    albedo = TextureAlbedo((), np.full(2, -1, np.int64), np.zeros((2, 3, 2)), np.ones((2, 3)), corners=paint)
+    return corners, paint, albedo
+
+
+def test_painted_albedo_is_the_corners_colours_interpolated_linearly():
+    corners, paint, albedo = _painted_triangles()
+    rng = np.random.default_rng(3)
+    w = rng.dirichlet(np.ones(3), size=50)  # barycentric weights, then the points they make
+    points = np.einsum("mk,kj->mj", w, corners[0])
+    rho = np.array([[0.5, 0.5, 0.5], [0.2, 0.4, 0.6]])
+    got = albedo_at(albedo, rho, corners, np.zeros(50, np.int64), points)
+    np.testing.assert_allclose(got, w @ paint[0], atol=1e-12)
+    other = albedo_at(albedo, rho, corners, np.ones(3, np.int64), corners[1])
+    np.testing.assert_array_equal(other, np.tile(rho[1], (3, 1)))  # not painted: its own constant
+    assert albedo.painted.tolist() == [True, False] and albedo.varies.tolist() == [True, False]
+
+
+def test_a_painted_triangles_mean_albedo_is_its_corners_mean():
+    """The mean of a linear function over a triangle is the mean of its corner values."""
+    corners, paint, albedo = _painted_triangles()
+    rho = np.array([[0.5, 0.5, 0.5], [0.2, 0.4, 0.6]])
+    means = triangle_means(albedo, rho, corners)
+    np.testing.assert_allclose(means[0], paint[0].mean(axis=0), atol=1e-12)
+    np.testing.assert_array_equal(means[1], rho[1])
+
+
+def test_paint_changes_the_key_and_a_table_without_paint_keeps_its_key():
+    corners, paint, albedo = _painted_triangles()
+    plain = TextureAlbedo((), albedo.image_of, albedo.uv, albedo.tint)
+    repainted = TextureAlbedo((), albedo.image_of, albedo.uv, albedo.tint, corners=paint * 0.5)
+    assert len({plain.key(), albedo.key(), repainted.key()}) == 3
+    with pytest.raises(OvradError, match="corner colours"):
+        TextureAlbedo((), albedo.image_of, albedo.uv, albedo.tint, corners=paint[:, :2])
