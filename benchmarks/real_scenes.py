@@ -87,6 +87,34 @@ def painted_material(name: str, attribute: str) -> bpy.types.Material:
     return mat
 
 
+def mixed_material(name: str, blend: str, factor: float, a, b) -> bpy.types.Material:
+    """Principled BSDF whose Base Color is a Mix node (colour) of a and b, each an RGB constant, an
+    image (through the mesh's UV map) or a colour attribute's name."""
+    mat = diffuse(name, (0.8, 0.8, 0.8))
+    tree = mat.node_tree
+    bsdf = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeBsdfPrincipled")
+    mix = tree.nodes.new("ShaderNodeMix")
+    mix.data_type, mix.blend_type = "RGBA", blend
+    sockets = {s.identifier: s for s in mix.inputs}
+    sockets["Factor_Float"].default_value = factor
+    for source, socket in ((a, sockets["A_Color"]), (b, sockets["B_Color"])):
+        if isinstance(source, bpy.types.Image):
+            tex = tree.nodes.new("ShaderNodeTexImage")
+            tex.image, tex.interpolation = source, "Linear"
+            uv = tree.nodes.new("ShaderNodeUVMap")
+            tree.links.new(uv.outputs["UV"], tex.inputs["Vector"])
+            tree.links.new(tex.outputs["Color"], socket)
+        elif isinstance(source, str):
+            node = tree.nodes.new("ShaderNodeVertexColor")
+            node.layer_name = source
+            tree.links.new(node.outputs["Color"], socket)
+        else:
+            socket.default_value = (*source, 1.0)
+    out = next(s for s in mix.outputs if s.identifier == "Result_Color")
+    tree.links.new(out, bsdf.inputs["Base Color"])
+    return mat
+
+
 def paint(me, name: str, data_type: str, domain: str, colour) -> None:
     """A colour attribute on a mesh, each vertex or face corner coloured colour(position (k, 3))
     (k, 3) in linear RGB, made the mesh's render colour attribute."""
@@ -458,14 +486,20 @@ def instances():
     return scene
 
 
-def textured_floor():
-    """A floor whose Base Color is an sRGB checker image through its UV map."""
-    scene = _new_scene("textured")
+def _room_apart_from_its_floor(name: str):
+    """A new scene holding a white 2.4 x 2.4 x 2.2 m room without its floor; (scene, the floor's quad)."""
+    scene = _new_scene(name)
     white = diffuse("White", WHITE)
-    w, d, h = 2.4, 2.4, 2.2
-    faces = room_faces(w, d, h)
+    faces = room_faces(2.4, 2.4, 2.2)
     floor = faces.pop("floor")
     mesh("Room", list(faces.values()), white)
+    return scene, floor
+
+
+def textured_floor():
+    """A floor whose Base Color is an sRGB checker image through its UV map."""
+    scene, floor = _room_apart_from_its_floor("textured")
+    h = 2.2
     mesh("Floor", [floor], textured("Checker", checker_image("checker.png")), uv=True)
     area_lamp(scene, "Lamp", (1.2, 1.2, h - 0.05), 0.6, 200.0)
     camera(scene, (0.2, 0.1, 1.6), (1.4, 1.4, 0.0))
@@ -476,12 +510,8 @@ def painted():
     """A room whose floor's Base Color is a named byte colour attribute per face corner (stripes of
     dark and light paint, mean about 0.5), and a box whose Base Color reads the render colour
     attribute, float colours per vertex (a gradient)."""
-    scene = _new_scene("painted")
-    white = diffuse("White", WHITE)
-    w, d, h = 2.4, 2.4, 2.2
-    faces = room_faces(w, d, h)
-    floor = faces.pop("floor")
-    mesh("Room", list(faces.values()), white)
+    scene, floor = _room_apart_from_its_floor("painted")
+    h = 2.2
     fl = mesh("Floor", [floor], painted_material("FloorPaint", "Paint"))
 
     def stripes(p):
@@ -500,6 +530,64 @@ def painted():
     place("Box", box, (1.5, 1.0, 0.0), rotation_z=0.3)
     area_lamp(scene, "Lamp", (1.0, 1.4, h - 0.05), 0.5, 180.0)
     camera(scene, (0.2, 0.1, 1.6), (1.6, 1.6, 0.4))
+    return scene
+
+
+def mixed():
+    """A floor whose Base Color is a checker image multiplied by a colour attribute (per face
+    corner), and a box whose Base Color mixes a constant with its render colour attribute."""
+    scene, floor = _room_apart_from_its_floor("mixed")
+    d, h = 2.4, 2.2
+    checker = checker_image("checker.png")
+    fl = mesh("Floor", [floor], mixed_material("FloorMix", "MULTIPLY", 1.0, checker, "Dirt"), uv=True)
+    paint(fl.data, "Dirt", "BYTE_COLOR", "CORNER", lambda p: np.column_stack([0.4 + 0.6 * p[:, 1] / d] * 3))
+    box = box_mesh("Box", (0.6, 0.6, 0.6), mixed_material("BoxMix", "MIX", 0.6, WARM, ""))
+    paint(
+        box,
+        "Col",
+        "FLOAT_COLOR",
+        "POINT",
+        lambda p: np.column_stack([0.2 + 0 * p[:, 0], p[:, 2] / 0.6, 0.9 - 0.5 * p[:, 2]]),
+    )
+    place("Box", box, (1.5, 1.0, 0.0), rotation_z=0.3)
+    area_lamp(scene, "Lamp", (1.0, 1.4, h - 0.05), 0.5, 180.0)
+    camera(scene, (0.2, 0.1, 1.6), (1.6, 1.6, 0.4))
+    return scene
+
+
+def screen():
+    """A dark room lit only by a screen on its north wall: a Principled BSDF whose Emission Color is
+    an sRGB image (warm, dark and cool bands) through the screen's UV map, strength 6."""
+    scene = _new_scene("screen")
+    white = diffuse("White", WHITE)
+    w, d, h = 2.4, 2.4, 2.2
+    mesh("Room", list(room_faces(w, d, h).values()), white)
+    img = bpy.data.images.new("screen.png", 48, 32, alpha=False)
+    img.colorspace_settings.name = "sRGB"
+    x = np.arange(48) * 3 // 48  # three bands across the screen
+    bands = np.array([[1.0, 0.7, 0.4], [0.15, 0.15, 0.15], [0.4, 0.6, 1.0]])[x]
+    px = np.concatenate([np.broadcast_to(bands, (32, 48, 3)), np.ones((32, 48, 1))], axis=-1)
+    img.pixels.foreach_set(px.astype(np.float32).ravel())
+    img.pack()
+    mat = diffuse("Screen", (0.05, 0.05, 0.05))
+    tree = mat.node_tree
+    bsdf = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeBsdfPrincipled")
+    tex = tree.nodes.new("ShaderNodeTexImage")
+    tex.image, tex.interpolation = img, "Linear"
+    tree.links.new(tex.outputs["Color"], bsdf.inputs["Emission Color"])
+    bsdf.inputs["Emission Strength"].default_value = 6.0
+    # a 1.2 x 0.7 m screen 2 cm off the north wall, its UVs spanning the image once
+    x0, x1, z0, z1, y = 0.6, 1.8, 0.9, 1.6, d - 0.02
+    obj = mesh("Screen", [[(x0, y, z0), (x1, y, z0), (x1, y, z1), (x0, y, z1)]], mat, spacing=0.05)
+    me = obj.data
+    co = np.empty(3 * len(me.vertices))
+    me.vertices.foreach_get("co", co)
+    co = co.reshape(-1, 3)
+    loops = np.empty(len(me.loops), np.int32)
+    me.loops.foreach_get("vertex_index", loops)
+    uv = np.column_stack([(co[:, 0] - x0) / (x1 - x0), (co[:, 2] - z0) / (z1 - z0)])
+    me.uv_layers.new(name="UVMap").data.foreach_set("uv", uv[loops].astype(np.float32).ravel())
+    camera(scene, (1.2, 0.2, 1.4), (1.2, 2.4, 1.0))
     return scene
 
 
@@ -539,6 +627,8 @@ SCENES = {
     "instances": instances,
     "textured": textured_floor,
     "painted": painted,
+    "mixed": mixed,
+    "screen": screen,
     "sky_constant": sky_constant,
     "sky_hdr": sky_hdr,
 }
@@ -574,7 +664,7 @@ def baked_meshes(scene) -> list:
 
 
 def _emits(mat) -> bool:
-    """An Emission shader, or a Principled BSDF with a plain (unlinked, non-black) emission."""
+    """An Emission shader, or a Principled BSDF with emission (a non-black colour, or one from nodes)."""
     if mat.node_tree is None:
         return False
     for n in mat.node_tree.nodes:
@@ -582,7 +672,8 @@ def _emits(mat) -> bool:
             return True
         if n.bl_idname == "ShaderNodeBsdfPrincipled":
             colour, strength = n.inputs["Emission Color"], n.inputs["Emission Strength"]
-            if not colour.is_linked and strength.default_value > 0 and max(colour.default_value[:3]) > 0:
+            lit = colour.is_linked or max(colour.default_value[:3]) > 0
+            if strength.default_value > 0 and lit:
                 return True
     return False
 

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..ovrad_addon import OvradError, Surfaces, TextureAlbedo, names
+from ..ovrad_addon import OvradError, Surfaces, TextureAlbedo, names, triangle_means
 from . import materials, scene_model
 
 
@@ -41,6 +41,7 @@ class _Mesh:
     textures: list = field(default_factory=list)
     image_of: np.ndarray | None = None
     uv: np.ndarray | None = None
+    tint: np.ndarray | None = None
     corners: np.ndarray | None = None
 
 
@@ -53,6 +54,12 @@ def _read_mesh(data, warnings: list[str], cache: dict) -> _Colors:
         np.array([m.reflectance for m in lights])[slot], np.array([m.emission for m in lights])[slot]
     )
     for k, m in enumerate(lights):
+        if m.emitted is not None and np.any(slot == k) and _readable(data, m.emitted, k, warnings):
+            out.emitting.append((k, m.emitted))
+        # the texture's tint where its map is used, else on the paint; the map's mean where unusable
+        textured = m.texture is not None and data.has_uv_map(m.texture.uv_map)
+        if textured and np.any(slot == k):
+            out.tints[k] = m.tint
         if m.paint is not None and np.any(slot == k):
             if data.triangle_colors(m.paint.attribute) is None:
                 which = (
@@ -64,7 +71,10 @@ def _read_mesh(data, warnings: list[str], cache: dict) -> _Colors:
                     "Cycles renders it"
                 )
             else:
-                out.painted.append((k, m.paint.attribute))
+                factor = np.ones(3) if textured else m.tint
+                if m.texture is not None and not textured:
+                    factor = m.reflectance  # tint x the image's mean colour
+                out.painted.append((k, m.paint, factor))
         if m.texture is None or not np.any(slot == k):
             continue
         if not data.has_uv_map(m.texture.uv_map):
@@ -80,31 +90,72 @@ def _read_mesh(data, warnings: list[str], cache: dict) -> _Colors:
     return out
 
 
+def _readable(data, term, k: int, warnings: list[str]) -> bool:
+    """Whether a mesh has the UV map and the colour attribute a varying emission colour reads
+    (else its material's mean emission stands, with a warning)."""
+    name = getattr(data.materials[k], "name", "?") if k < len(data.materials) else "?"
+    if term.texture is not None and not data.has_uv_map(term.texture.uv_map):
+        warnings.append(
+            f"a mesh with material '{name}' has no UV map for its emission: emits the image's mean"
+        )
+        return False
+    if term.paint is not None and data.triangle_colors(term.paint.attribute) is None:
+        warnings.append(f"a mesh with material '{name}' has no colour attribute for its emission: emits none")
+        return False
+    return True
+
+
+def _emitted(data, term, on: np.ndarray) -> np.ndarray:
+    """(k, 3) the mean radiance each triangle `on` emits from a texture and/or paint (x strength)."""
+    tri = np.flatnonzero(on)
+    corners = data.vertices[data.triangles[tri]]
+    uv = np.zeros((len(tri), 3, 2))
+    images, image_of = (), np.full(len(tri), -1, np.int64)
+    if term.texture is not None:
+        images, image_of = (term.texture.pixels,), np.zeros(len(tri), np.int64)
+        uv = data.triangle_uvs(term.texture.uv_map)[tri]
+    paint = None
+    if term.paint is not None:
+        paint = term.paint.colours(data.triangle_colors(term.paint.attribute)[tri])
+    table = TextureAlbedo(images, image_of, uv, np.ones((len(tri), 3)), corners=paint)
+    return triangle_means(table, np.zeros((len(tri), 3)), corners, clip=False) * term.tint
+
+
 @dataclass
 class _Colors:
     """reflectance (T, 3) and emission (T, 3) of a mesh's triangles; textured: (material slot,
     MaterialTexture) of its image-textured slots that have UVs; painted: (material slot, colour
-    attribute name) of its painted slots whose mesh has that attribute; slot (T,) each triangle's slot."""
+    MaterialPaint, factor (3,)) of its painted slots whose mesh has that attribute; tints: the
+    factor on the map of each textured slot; emitting: (material slot, ColourTerm) of its slots
+    whose emission colour varies; slot (T,) each triangle's slot."""
 
     reflectance: np.ndarray
     emission: np.ndarray
     textured: list = field(default_factory=list)
     painted: list = field(default_factory=list)
+    tints: dict = field(default_factory=dict)
+    emitting: list = field(default_factory=list)
     slot: np.ndarray | None = None
 
 
 def _part(data, colors: _Colors) -> _Mesh:
     """A placed mesh (world space) with its colours and, for textured slots, its UVs."""
     part = _Mesh(data.vertices, data.triangles, colors.reflectance, colors.emission)
+    if colors.emitting:
+        part.emission = part.emission.copy()
+        for k, term in colors.emitting:
+            on = colors.slot == k
+            part.emission[on] = np.maximum(_emitted(data, term, on), 0.0)
     if colors.painted:
         part.corners = np.full((len(data.triangles), 3, 3), np.nan)
-        for k, attribute in colors.painted:
+        for k, paint, factor in colors.painted:
             on = colors.slot == k
-            part.corners[on] = data.triangle_colors(attribute)[on]
+            part.corners[on] = paint.colours(data.triangle_colors(paint.attribute)[on]) * factor
     if not colors.textured:
         return part
     part.image_of = np.full(len(data.triangles), -1, np.int64)
     part.uv = np.zeros((len(data.triangles), 3, 2))
+    part.tint = np.ones((len(data.triangles), 3))
     uvs = {}  # per UV map: slots sharing a map read it once
     for k, tex in colors.textured:
         on = colors.slot == k
@@ -112,6 +163,7 @@ def _part(data, colors: _Colors) -> _Mesh:
             uvs[tex.uv_map] = data.triangle_uvs(tex.uv_map)
         part.image_of[on] = len(part.textures)
         part.uv[on] = uvs[tex.uv_map][on]
+        part.tint[on] = colors.tints.get(k, 1.0)
         part.textures.append((tex.image, tex.pixels))
     return part
 
@@ -140,9 +192,10 @@ def _albedo(parts: list[_Mesh]) -> TextureAlbedo | None:
         return None
     images: dict[str, int] = {}
     pixels = []
-    image_of, uv = [], []
+    image_of, uv, tint = [], [], []
     for p in parts:
         n = len(p.triangles)
+        tint.append(np.ones((n, 3)) if p.tint is None else p.tint)
         if not p.textures:
             image_of.append(np.full(n, -1, np.int64))
             uv.append(np.zeros((n, 3, 2)))
@@ -166,7 +219,7 @@ def _albedo(parts: list[_Mesh]) -> TextureAlbedo | None:
         images=tuple(pixels),
         image_of=image_of,
         uv=np.concatenate(uv),
-        tint=np.ones((len(image_of), 3)),
+        tint=np.concatenate(tint),
         corners=corners,
     )
 

@@ -31,7 +31,7 @@ from .radiosity.first_shot import direct_light, solve
 from .radiosity.problem import Problem, attach_sheets, both_sides_index, locate, overlaps, prepare
 from .radiosity.solver import SolveProgress, SolveState
 from .radiosity.transport import cosine_directions
-from .scene.albedo import TextureAlbedo
+from .scene.albedo import TextureAlbedo, triangle_means
 from .scene.rays import has_embree, make_rays
 from .scene.surfaces import Surfaces, triangle_geometry
 from .settings import FINE_QUADRATURE, MAX_GATHER_RAYS, AtlasSettings, ObjectSettings, SolveSettings
@@ -98,5 +98,6 @@ __all__ = [
     "split_corners",
     "texels",
     "triangle_geometry",
+    "triangle_means",
     "without_area",
 ]

@@ -26,9 +26,10 @@ class TextureAlbedo:
     """images: linear RGB albedo maps, each (h, w, 3), row 0 at the bottom (Blender's order);
     image_of: (T,) int64, the map of each triangle (-1: none); uv: (T, 3, 2) texture coordinates of
     each triangle's corners; tint: (T, 3) factor applied to the map (1 for a plain texture);
-    corners: None, or (T, 3, 3) linear RGB painted at each triangle corner, used where image_of is
-    -1 and the colours are finite (NaN: the triangle is not painted). A triangle with neither has
-    its constant reflectance."""
+    corners: None, or (T, 3, 3) linear RGB painted at each triangle corner where finite (NaN: the
+    triangle is not painted), interpolated linearly: the albedo where the triangle has no map, a
+    factor on the map where it has one (a texture multiplied by a colour attribute). A triangle with
+    neither has its constant reflectance."""
 
     images: tuple = field(repr=False)
     image_of: np.ndarray = field(repr=False)
@@ -49,16 +50,21 @@ class TextureAlbedo:
                 raise OvradError(f"texture albedo: images must be (h, w, 3), got {img.shape}")
 
     @property
-    def painted(self) -> np.ndarray:
-        """(T,) bool: the triangles whose albedo is their corners' painted colours."""
+    def has_paint(self) -> np.ndarray:
+        """(T,) bool: the triangles with painted corner colours."""
         if self.corners is None:
             return np.zeros(len(self.image_of), bool)
-        return (self.image_of < 0) & np.all(np.isfinite(self.corners), axis=(1, 2))
+        return np.all(np.isfinite(self.corners), axis=(1, 2))
+
+    @property
+    def painted(self) -> np.ndarray:
+        """(T,) bool: the triangles whose albedo is their corners' painted colours (no map)."""
+        return (self.image_of < 0) & self.has_paint
 
     @property
     def varies(self) -> np.ndarray:
         """(T,) bool: the triangles whose albedo varies over them (a texture or paint)."""
-        return (self.image_of >= 0) | self.painted
+        return (self.image_of >= 0) | self.has_paint
 
     def key(self) -> bytes:
         """Bytes that change when any map, assignment, UV or paint changes (for cache keys)."""
@@ -111,10 +117,12 @@ def albedo_at(
     corners: np.ndarray,
     triangles: np.ndarray,
     points: np.ndarray,
+    clip: bool = True,
 ) -> np.ndarray:
     """Albedo (m, 3) at surface points on `triangles` (m,): the texture or the paint where the
     triangle has one, else the triangle's constant reflectance (T, 3). corners: (T, 3, 3) of all
-    triangles' positions."""
+    triangles' positions. clip: an albedo is clipped to [0, 1]; an emitted colour is not."""
+    lo, hi = (0.0, 1.0) if clip else (0.0, np.inf)
     tri = np.asarray(triangles, np.int64)
     out = np.asarray(reflectance, np.float64)[tri].copy()
     if textures is None or len(tri) == 0:
@@ -124,7 +132,7 @@ def albedo_at(
         t = tri[painted]
         bary = barycentric(corners[t], np.asarray(points, np.float64).reshape(-1, 3)[painted])
         colour = np.einsum("mk,mkj->mj", bary, textures.corners[t]) * textures.tint[t]
-        out[painted] = np.clip(colour, 0.0, 1.0)
+        out[painted] = np.clip(colour, lo, hi)
     which = textures.image_of[tri]
     for k in np.unique(which[which >= 0]):
         sel = np.flatnonzero(which == k)
@@ -132,15 +140,19 @@ def albedo_at(
         bary = barycentric(corners[t], np.asarray(points, np.float64).reshape(-1, 3)[sel])
         uv = np.einsum("mk,mkj->mj", bary, textures.uv[t])
         colour = bilinear(np.asarray(textures.images[k], np.float64), uv) * textures.tint[t]
-        out[sel] = np.clip(colour, 0.0, 1.0)
+        both = textures.has_paint[t]
+        if np.any(both):  # the map multiplied by the paint
+            colour[both] *= np.einsum("mk,mkj->mj", bary[both], textures.corners[t[both]])
+        out[sel] = np.clip(colour, lo, hi)
     return out
 
 
 def triangle_means(
-    textures: TextureAlbedo, reflectance: np.ndarray, corners: np.ndarray, k: int = 4
+    textures: TextureAlbedo, reflectance: np.ndarray, corners: np.ndarray, k: int = 4, clip: bool = True
 ) -> np.ndarray:
     """Each triangle's mean albedo (T, 3) over the centroids of its k^2 sub-triangles (the constant
-    reflectance where it has neither texture nor paint): what per-triangle code paths use."""
+    reflectance where it has neither texture nor paint): what per-triangle code paths use. clip:
+    as albedo_at (False for an emitted colour)."""
     uv = subtriangle_centroids(k)
     bary = np.column_stack([1 - uv.sum(axis=1), uv])  # (s, 3)
     out = np.asarray(reflectance, np.float64).copy()
@@ -149,6 +161,6 @@ def triangle_means(
         return out
     pts = np.einsum("sk,tkj->tsj", bary, corners[tri]).reshape(-1, 3)
     rep = np.repeat(tri, len(bary))
-    vals = albedo_at(textures, reflectance, corners, rep, pts).reshape(len(tri), len(bary), 3)
+    vals = albedo_at(textures, reflectance, corners, rep, pts, clip).reshape(len(tri), len(bary), 3)
     out[tri] = vals.mean(axis=1)
     return out

@@ -117,3 +117,29 @@ def test_paint_changes_the_key_and_a_table_without_paint_keeps_its_key():
     assert len({plain.key(), albedo.key(), repainted.key()}) == 3
     with pytest.raises(OvradError, match="corner colours"):
         TextureAlbedo((), albedo.image_of, albedo.uv, albedo.tint, corners=paint[:, :2])
+
+
+def test_paint_on_a_textured_triangle_multiplies_its_map():
+    img = _ramp()
+    corners = np.array([[[0.0, 0, 0], [1.0, 0, 0], [0.0, 1, 0]]])
+    uv = np.array([[[0.2, 0.2], [0.8, 0.2], [0.2, 0.8]]])
+    paint = np.array([[[1.0, 0.5, 0.2], [0.5, 0.5, 0.5], [0.2, 1.0, 0.8]]])
+    plain = TextureAlbedo((img,), np.zeros(1, np.int64), uv, np.ones((1, 3)))
+    both = TextureAlbedo((img,), np.zeros(1, np.int64), uv, np.ones((1, 3)), corners=paint)
+    rng = np.random.default_rng(5)
+    w = rng.dirichlet(np.ones(3), size=40)
+    points = np.einsum("mk,kj->mj", w, corners[0])
+    tri = np.zeros(40, np.int64)
+    rho = np.full((1, 3), 0.5)
+    expected = albedo_at(plain, rho, corners, tri, points) * (w @ paint[0])
+    np.testing.assert_allclose(albedo_at(both, rho, corners, tri, points), expected, atol=1e-12)
+    assert both.varies.all() and not both.painted.any() and both.has_paint.all()
+
+
+def test_an_emitted_colour_is_not_clipped_as_an_albedo_is():
+    img = np.full((2, 2, 3), 0.8)
+    corners = np.array([[[0.0, 0, 0], [1.0, 0, 0], [0.0, 1, 0]]])
+    table = TextureAlbedo((img,), np.zeros(1, np.int64), np.full((1, 3, 2), 0.5), np.full((1, 3), 3.0))
+    rho = np.zeros((1, 3))
+    np.testing.assert_allclose(triangle_means(table, rho, corners), 1.0)  # an albedo: at most 1
+    np.testing.assert_allclose(triangle_means(table, rho, corners, clip=False), 2.4, rtol=1e-12)
