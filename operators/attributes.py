@@ -42,29 +42,27 @@ def atlas_objects(source: str | None = None) -> list:
 NOT_EXPORTED = "glTF_not_exported"
 
 
-def keep_out_of_renders(obj) -> None:
+def keep_out_of_renders(obj) -> bool:
     """An atlas object is a tool of the viewport: it takes no part in renders (F12, EEVEE, Cycles
-    and its bakes) nor in glTF exports. Its viewport display is left as it is."""
-    if not obj.hide_render:
+    and its bakes) nor in glTF exports. Its viewport display is left as it is. Returns whether
+    anything had to change."""
+    changed = not obj.hide_render
+    if changed:
         obj.hide_render = True
     coll = bpy.data.collections.get(NOT_EXPORTED)
     if coll is None or coll.library is not None:
         coll = bpy.data.collections.new(NOT_EXPORTED)
-    coll.use_fake_user = True  # in no scene: kept in the file by its fake user
+        coll.use_fake_user = True  # in no scene: kept in the file by its fake user
     if coll.objects.get(obj.name) is not obj:
         coll.objects.link(obj)
+        changed = True
+    return changed
 
 
 def keep_atlases_out_of_renders() -> int:
-    """keep_out_of_renders on every atlas object of the file (files made before atlases were kept
-    out render them); returns how many were changed."""
-    coll = bpy.data.collections.get(NOT_EXPORTED)
-    mended = 0
-    for obj in atlas_objects():
-        if not obj.hide_render or coll is None or coll.objects.get(obj.name) is not obj:
-            keep_out_of_renders(obj)
-            mended += 1
-    return mended
+    """keep_out_of_renders on every atlas object of the file (atlases of files made before they
+    were kept out render); returns how many had to change."""
+    return sum(keep_out_of_renders(obj) for obj in atlas_objects())
 
 
 def ensure_collection(scene) -> bpy.types.Collection:
