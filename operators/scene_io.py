@@ -54,20 +54,34 @@ def _read_mesh(data, warnings: list[str], cache: dict) -> _Colors:
         np.array([m.reflectance for m in lights])[slot], np.array([m.emission for m in lights])[slot]
     )
     for k, m in enumerate(lights):
-        if m.emitted is not None and np.any(slot == k) and _readable(data, m.emitted, k, warnings):
-            out.emitting.append((k, m.emitted))
-        # the texture's tint where its map is used, else on the paint; the map's mean where unusable
-        textured = m.texture is not None and data.has_uv_map(m.texture.uv_map)
-        if textured and np.any(slot == k):
-            out.tints[k] = m.tint
-        if m.paint is not None and np.any(slot == k):
-            if data.triangle_colors(m.paint.attribute) is None:
-                which = (
-                    f"a colour attribute '{m.paint.attribute}'" if m.paint.attribute else "a colour attribute"
-                )
-                name = getattr(data.materials[k], "name", "?") if k < len(data.materials) else "?"
+        if not np.any(slot == k):
+            continue
+        name = getattr(data.materials[k], "name", "?") if k < len(data.materials) else "?"
+        if m.emitted is not None:
+            lacks = _lacks(data, m.emitted.texture, m.emitted.paint)
+            if lacks is None:
+                out.emitting.append((k, m.emitted))
+            else:  # its material's mean emission stands
                 warnings.append(
-                    f"a mesh with material '{name}' has no {which}: its Base Color reads black there, as "
+                    f"a mesh with material '{name}' has no {lacks} for its emission; "
+                    "it emits its material's mean"
+                )
+        # the texture's tint where its map is used, else on the paint; the map's mean where unusable
+        no_uv = None if m.texture is None else _lacks(data, m.texture, None)
+        textured = m.texture is not None and no_uv is None
+        if textured:
+            out.tints[k] = m.tint
+            out.textured.append((k, m.texture))
+        elif no_uv is not None:
+            warnings.append(
+                f"a mesh with material '{name}' has no {no_uv} for image '{m.texture.image}'; "
+                "using the image's mean colour"
+            )
+        if m.paint is not None:
+            lacks = _lacks(data, None, m.paint)
+            if lacks is not None:
+                warnings.append(
+                    f"a mesh with material '{name}' has no {lacks}: its Base Color reads black there, as "
                     "Cycles renders it"
                 )
             else:
@@ -75,34 +89,18 @@ def _read_mesh(data, warnings: list[str], cache: dict) -> _Colors:
                 if m.texture is not None and not textured:
                     factor = m.reflectance  # tint x the image's mean colour
                 out.painted.append((k, m.paint, factor))
-        if m.texture is None or not np.any(slot == k):
-            continue
-        if not data.has_uv_map(m.texture.uv_map):
-            which = f"a UV map '{m.texture.uv_map}'" if m.texture.uv_map else "a UV map"
-            name = getattr(data.materials[k], "name", "?") if k < len(data.materials) else "?"
-            warnings.append(
-                f"a mesh with material '{name}' has no {which} for image '{m.texture.image}'; "
-                "using the image's mean colour"
-            )
-            continue
-        out.textured.append((k, m.texture))
     out.slot = slot
     return out
 
 
-def _readable(data, term, k: int, warnings: list[str]) -> bool:
-    """Whether a mesh has the UV map and the colour attribute a varying emission colour reads
-    (else its material's mean emission stands, with a warning)."""
-    name = getattr(data.materials[k], "name", "?") if k < len(data.materials) else "?"
-    if term.texture is not None and not data.has_uv_map(term.texture.uv_map):
-        warnings.append(
-            f"a mesh with material '{name}' has no UV map for its emission: emits the image's mean"
-        )
-        return False
-    if term.paint is not None and data.triangle_colors(term.paint.attribute) is None:
-        warnings.append(f"a mesh with material '{name}' has no colour attribute for its emission: emits none")
-        return False
-    return True
+def _lacks(data, texture, paint) -> str | None:
+    """What a mesh lacks to read a material's texture (its UV map) or paint (its colour attribute),
+    as the warning names it; None where it has both."""
+    if texture is not None and not data.has_uv_map(texture.uv_map):
+        return f"UV map '{texture.uv_map}'" if texture.uv_map else "UV map"
+    if paint is not None and data.triangle_colors(paint.attribute) is None:
+        return f"colour attribute '{paint.attribute}'" if paint.attribute else "colour attribute"
+    return None
 
 
 def _emitted(data, term, on: np.ndarray) -> np.ndarray:

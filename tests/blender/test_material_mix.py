@@ -4,7 +4,9 @@ Add A + f B; Invert c + f (1 - 2 c))."""
 
 from __future__ import annotations
 
-import blender_scenes
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -12,28 +14,19 @@ bpy = pytest.importorskip("bpy")
 
 pytestmark = pytest.mark.blender
 
+ROOT = Path(__file__).resolve().parents[2]
+
 RED, GREY = (0.8, 0.2, 0.1), (0.5, 0.5, 0.5)
 
 
 def _material(blend: str, factor: float, a, b):
-    """A Principled material whose Base Color is a Mix (colour) node of a and b: an RGB triple, or
-    a string naming a colour attribute."""
-    mat = blender_scenes.principled(f"mix {blend}")
-    tree = mat.node_tree
-    bsdf = tree.nodes["Principled BSDF"]
-    mix = tree.nodes.new("ShaderNodeMix")
-    mix.data_type, mix.blend_type = "RGBA", blend
-    sockets = {s.identifier: s for s in mix.inputs}
-    sockets["Factor_Float"].default_value = factor
-    for source, socket in ((a, sockets["A_Color"]), (b, sockets["B_Color"])):
-        if isinstance(source, str):
-            node = tree.nodes.new("ShaderNodeVertexColor")
-            node.layer_name = source
-            tree.links.new(node.outputs["Color"], socket)
-        else:
-            socket.default_value = (*source, 1.0)
-    tree.links.new(next(s for s in mix.outputs if s.identifier == "Result_Color"), bsdf.inputs["Base Color"])
-    return mat, mix
+    """A Principled material whose Base Color is a Mix (colour) node of a and b (an RGB triple or a
+    colour attribute's name), made as the real-scenes set makes it; and that node."""
+    sys.path.insert(0, str(ROOT))
+    from benchmarks import real_scenes
+
+    mat = real_scenes.mixed_material(f"mix {blend}", blend, factor, a, b)
+    return mat, next(n for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeMix")
 
 
 @pytest.mark.parametrize(
