@@ -591,6 +591,71 @@ def screen():
     return scene
 
 
+def leaf_image(name: str, size: int = 128) -> bpy.types.Image:
+    """A packed 8-bit RGBA image of leaves: alpha 1 inside six rotated ellipses, 0 between them
+    (an alpha-cut mask, as foliage cards use), green of varying shade."""
+    img = bpy.data.images.new(name, size, size, alpha=True)
+    img.colorspace_settings.name = "sRGB"
+    y, x = (np.mgrid[0:size, 0:size] + 0.5) / size
+    inside = np.zeros((size, size), bool)
+    shade = np.zeros((size, size))
+    rng = np.random.default_rng(11)
+    for k in range(6):
+        cx, cy = rng.uniform(0.25, 0.75, 2)
+        turn = rng.uniform(0, np.pi)
+        u = (x - cx) * np.cos(turn) + (y - cy) * np.sin(turn)
+        v = -(x - cx) * np.sin(turn) + (y - cy) * np.cos(turn)
+        leaf = (u / 0.22) ** 2 + (v / 0.09) ** 2 <= 1.0
+        shade[leaf] = 0.6 + 0.4 * k / 5
+        inside |= leaf
+    rgb = np.array([0.35, 0.6, 0.25]) * shade[..., None]  # sRGB-encoded, as an 8-bit texture stores
+    px = np.concatenate([rgb, inside[..., None].astype(float)], axis=-1).astype(np.float32)
+    img.pixels.foreach_set(px.ravel())
+    img.pack()
+    return img
+
+
+def foliage():
+    """A terrace under a canopy of alpha-cut leaf cards, lit by a sun and a blue sky: a Principled
+    BSDF whose Base Color and Alpha come from one RGBA image through each card's UV map. The floor
+    and two walls are scored; the cards are not (see baked_meshes)."""
+    scene = _new_scene("foliage")
+    white = diffuse("White", WHITE)
+    w = 4.0
+    mesh("Floor", [[(0, 0, 0), (w, 0, 0), (w, w, 0), (0, w, 0)]], white)
+    mesh("WallNorth", [[(0, w, 0), (w, w, 0), (w, w, 2.6), (0, w, 2.6)]], diffuse("Warm", WARM))
+    mesh("WallWest", [[(0, 0, 0), (0, w, 0), (0, w, 2.6), (0, 0, 2.6)]], white)
+    leaves = textured("Leaves", leaf_image("leaves.png"))
+    tree = leaves.node_tree
+    bsdf = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeBsdfPrincipled")
+    tex = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeTexImage")
+    tree.links.new(tex.outputs["Alpha"], bsdf.inputs["Alpha"])
+    # 48 cards of 0.7 m, tilted up to 25 degrees, 2.2-2.6 m up over the terrace
+    rng = np.random.default_rng(5)
+    verts, faces, uvs = [], [], []
+    for k in range(48):
+        c = np.array([rng.uniform(0.6, 3.6), rng.uniform(0.4, 3.4), rng.uniform(2.2, 2.6)])
+        turn, tilt = rng.uniform(0, 2 * np.pi), np.radians(rng.uniform(0, 25))
+        a = np.array([np.cos(turn), np.sin(turn), 0.0])
+        b = np.array([-np.sin(turn) * np.cos(tilt), np.cos(turn) * np.cos(tilt), np.sin(tilt)])
+        corners = [c + 0.35 * (i * a + j * b) for i, j in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+        verts += corners
+        faces.append([4 * k + i for i in range(4)])
+        uvs += [(0, 0), (1, 0), (1, 1), (0, 1)]
+    me = bpy.data.meshes.new("Leaves")
+    me.from_pydata([tuple(v) for v in verts], [], faces)
+    me.uv_layers.new(name="UVMap").data.foreach_set("uv", np.array(uvs, np.float32).ravel())
+    me.materials.append(leaves)
+    me.update()
+    scene.collection.objects.link(bpy.data.objects.new("Leaves", me))
+    sun = _lamp(scene, "Sun", "SUN", (2, 2, 5), 3.0, (1.0, 0.95, 0.85))
+    sun.data.angle = math.radians(1.0)
+    _aim(sun, (0.35, 0.45, -0.82))
+    world(scene, (0.45, 0.6, 1.0), 0.6)
+    camera(scene, (3.8, 0.2, 1.7), (1.5, 3.0, 0.8))
+    return scene
+
+
 def _window_room(scene):
     white = diffuse("White", WHITE)
     w, d, h = 2.4, 2.4, 2.2
@@ -629,6 +694,7 @@ SCENES = {
     "painted": painted,
     "mixed": mixed,
     "screen": screen,
+    "foliage": foliage,
     "sky_constant": sky_constant,
     "sky_hdr": sky_hdr,
 }
@@ -651,13 +717,16 @@ def build(name: str, path: str | Path):
 
 
 def baked_meshes(scene) -> list:
-    """What the batch bakes by default and the reference scores: every visible mesh object that does
-    not emit (emitters are flagged in the reference and not scored)."""
+    """What the batch bakes by default and the reference scores: every visible mesh object that
+    neither emits nor is see-through. Emitters: Cycles bakes their reflected light, ovrad adds their
+    emission. See-through surfaces (a material's Alpha below 1 or from an image): Cycles bakes
+    alpha x their reflected light (0 at a leaf card's cut-out corners), ovrad the light of the
+    surface where it is there."""
     out = []
     for obj in scene.objects:
         if obj.type != "MESH" or obj.hide_render or "ovrad_source" in obj:
             continue
-        if any(m is not None and _emits(m) for m in obj.data.materials):
+        if any(m is not None and (_emits(m) or _see_through(m)) for m in obj.data.materials):
             continue
         out.append(obj)
     return sorted(out, key=lambda o: o.name)
@@ -674,6 +743,18 @@ def _emits(mat) -> bool:
             colour, strength = n.inputs["Emission Color"], n.inputs["Emission Strength"]
             lit = colour.is_linked or max(colour.default_value[:3]) > 0
             if strength.default_value > 0 and lit:
+                return True
+    return False
+
+
+def _see_through(mat) -> bool:
+    """A Principled BSDF whose Alpha is below 1 or driven by nodes."""
+    if mat.node_tree is None:
+        return False
+    for n in mat.node_tree.nodes:
+        if n.bl_idname == "ShaderNodeBsdfPrincipled":
+            alpha = n.inputs["Alpha"]
+            if alpha.is_linked or alpha.default_value < 1.0:
                 return True
     return False
 

@@ -8,13 +8,23 @@ UV map. A Base Color (or Color) driven by a Color Attribute node is read as pain
 colour attribute of that name (or its render colour attribute), per face corner, interpolated
 across each triangle as Cycles does. Mix (Mix, Multiply, Add, Subtract) and Invert nodes with
 constant factors over those are followed where the result is still a tint x texture x paint
-(ColourTerm): a texture multiplied by paint, paint mixed with a constant. Anything else that drives
-a colour gives the material's viewport colour and one warning naming the material and the node.
+(ColourTerm): a texture multiplied by paint, paint mixed with a constant. Nonlinear nodes with
+constant inputs besides their colours, as Cycles computes them: Hue/Saturation/Value, Gamma,
+Brightness/Contrast, RGB Curves (tabulated as Cycles tabulates them) and every other Mix blend type
+(Screen, Overlay, Divide, Difference, Exclusion, Darken, Lighten, Dodge, Burn, Soft Light, Linear
+Light, Hue, Saturation, Color, Value) and a Mix node's clamped result, on a constant, on a texture
+(its texels transformed: exact at texel centres, Cycles transforms the filtered colour) or on paint
+(each corner's colour transformed, then interpolated: exact where a face has one colour, Cycles
+transforms the interpolated colour); a Mix of two textures through one UV map at one size texel by
+texel, of paint with the same paint corner by corner. Anything else that drives a colour (a node
+on a texture times paint, a linked factor or node input, other nodes) gives the material's
+viewport colour and one warning naming the material and the node.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 
@@ -46,13 +56,23 @@ class MaterialTexture:
 @dataclass(frozen=True)
 class MaterialPaint:
     """An albedo painted into a colour attribute: its name ('' = the mesh's render colour attribute),
-    read as offset + scale x the attribute's colour (scale, offset (3,): a Mix or Invert node on it)."""
+    read as offset + scale x T(the attribute's colour) (scale, offset (3,): a Mix or Invert node on
+    it; T: the transforms, functions of colours (..., 3), applied in order: a nonlinear node such as
+    Hue/Saturation/Value, Gamma or RGB Curves on it).
+
+    The transforms are applied to each corner's colour, which is then interpolated across the
+    triangle; Cycles interpolates first and applies the node to the result. The two agree exactly
+    where a triangle's corners have one colour (paint constant per face) and otherwise differ by
+    the node's curvature across the triangle."""
 
     attribute: str
     scale: tuple = (1.0, 1.0, 1.0)
     offset: tuple = (0.0, 0.0, 0.0)
+    transforms: tuple = ()
 
     def colours(self, rgb: np.ndarray) -> np.ndarray:
+        for transform in self.transforms:
+            rgb = transform(rgb)
         return np.asarray(self.offset) + np.asarray(self.scale) * rgb
 
 
@@ -88,7 +108,9 @@ def _affine(term: ColourTerm, scale, offset) -> ColourTerm | None:
         label = f"{tex.image} x{tuple(np.round(s, 6))} +{tuple(np.round(offset, 6))}"
         return ColourTerm(np.ones(3), MaterialTexture(pixels, tex.uv_map, label))
     p = term.paint
-    new = MaterialPaint(p.attribute, tuple(s * np.asarray(p.scale)), tuple(offset + s * np.asarray(p.offset)))
+    new = MaterialPaint(
+        p.attribute, tuple(s * np.asarray(p.scale)), tuple(offset + s * np.asarray(p.offset)), p.transforms
+    )
     return ColourTerm(np.ones(3), paint=new)
 
 
@@ -118,6 +140,232 @@ def _mix_inputs(node):
     return node.blend_type, node.inputs["Fac"], node.inputs["Color1"], node.inputs["Color2"], True
 
 
+def _clamps_result(node) -> bool:
+    """Whether a Mix (colour) node clamps its result to [0, 1] (the legacy MixRGB node's Clamp)."""
+    return bool(node.clamp_result if node.bl_idname == "ShaderNodeMix" else node.use_clamp)
+
+
+# Cycles' colour nodes on colours (..., 3), float64 (intern/cycles/kernel/svm/color_util.h,
+# hsv.h, gamma.h, ramp.h and util/color.h), written for numpy arrays.
+
+
+def _interp(a, b, t):
+    return a + t * (b - a)
+
+
+def rgb_to_hsv(c: np.ndarray) -> np.ndarray:
+    """Cycles' rgb_to_hsv on colours (..., 3): hue in [0, 1), saturation, value (the maximum)."""
+    r, g, b = c[..., 0], c[..., 1], c[..., 2]
+    cmax = np.maximum(r, np.maximum(g, b))
+    delta = cmax - np.minimum(r, np.minimum(g, b))
+    s = np.where(cmax != 0.0, delta / np.where(cmax != 0.0, cmax, 1.0), 0.0)
+    chromatic = s != 0.0
+    d = np.where(chromatic, delta, 1.0)
+    cr, cg, cb = (cmax - r) / d, (cmax - g) / d, (cmax - b) / d
+    h = np.where(r == cmax, cb - cg, np.where(g == cmax, 2.0 + cr - cb, 4.0 + cg - cr)) / 6.0
+    h = np.where(h < 0.0, h + 1.0, h)
+    return np.stack([np.where(chromatic, h, 0.0), s, cmax], axis=-1)
+
+
+def hsv_to_rgb(hsv: np.ndarray) -> np.ndarray:
+    """Cycles' hsv_to_rgb on (..., 3) hue, saturation, value."""
+    h, s, v = hsv[..., 0], hsv[..., 1], hsv[..., 2]
+    h = np.where(h == 1.0, 0.0, h) * 6.0
+    i = np.floor(h)
+    f = h - i
+    p, q, t = v * (1.0 - s), v * (1.0 - s * f), v * (1.0 - s * (1.0 - f))
+    sectors = [(v, t, p), (q, v, p), (p, v, t), (p, q, v), (t, p, v)]
+    rgb = [
+        np.select([i == k for k in range(5)], [sec[ch] for sec in sectors], (v, p, q)[ch]) for ch in range(3)
+    ]
+    return np.where((s != 0.0)[..., None], np.stack(rgb, axis=-1), v[..., None])
+
+
+def _with_hsv(a, mask, hsv):
+    """hsv_to_rgb(hsv) where mask (...,), a elsewhere."""
+    return np.where(mask[..., None], hsv_to_rgb(hsv), a)
+
+
+def mix_colours(blend: str, t: float, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cycles' Mix (colour) node of blend type `blend` at factor t on colours a, b (..., 3) (the
+    factor already clamped where the node clamps it; the result unclamped)."""
+    a, b = np.broadcast_arrays(np.asarray(a, float), np.asarray(b, float))
+    tm = 1.0 - t
+    if blend == "MIX":
+        return _interp(a, b, t)
+    if blend == "ADD":
+        return _interp(a, a + b, t)
+    if blend == "MULTIPLY":
+        return _interp(a, a * b, t)
+    if blend == "SUBTRACT":
+        return _interp(a, a - b, t)
+    if blend == "SCREEN":
+        return 1.0 - (tm + t * (1.0 - b)) * (1.0 - a)
+    if blend == "OVERLAY":
+        return np.where(a < 0.5, a * (tm + 2.0 * t * b), 1.0 - (tm + 2.0 * t * (1.0 - b)) * (1.0 - a))
+    if blend == "DIVIDE":
+        return np.where(b != 0.0, tm * a + t * a / np.where(b != 0.0, b, 1.0), a)
+    if blend == "DIFFERENCE":
+        return _interp(a, np.abs(a - b), t)
+    if blend == "EXCLUSION":
+        return np.maximum(_interp(a, a + b - 2.0 * a * b, t), 0.0)
+    if blend == "DARKEN":
+        return _interp(a, np.minimum(a, b), t)
+    if blend == "LIGHTEN":
+        return _interp(a, np.maximum(a, b), t)
+    if blend == "DODGE":
+        den = 1.0 - t * b
+        dodged = np.where(den <= 0.0, 1.0, np.minimum(a / np.where(den <= 0.0, 1.0, den), 1.0))
+        return np.where(a != 0.0, dodged, a)
+    if blend == "BURN":
+        den = tm + t * b
+        burnt = np.clip(1.0 - (1.0 - a) / np.where(den <= 0.0, 1.0, den), 0.0, 1.0)
+        return np.where(den <= 0.0, 0.0, burnt)
+    if blend == "SOFT_LIGHT":
+        screen = 1.0 - (1.0 - b) * (1.0 - a)
+        return tm * a + t * ((1.0 - a) * b * a + a * screen)
+    if blend == "LINEAR_LIGHT":
+        return a + t * (2.0 * b - 1.0)
+    ha, hb = rgb_to_hsv(a), rgb_to_hsv(b)
+    if blend == "HUE":
+        hsv = np.concatenate([hb[..., :1], ha[..., 1:]], axis=-1)
+        return np.where((hb[..., 1] != 0.0)[..., None], _interp(a, hsv_to_rgb(hsv), t), a)
+    if blend == "COLOR":
+        hsv = np.concatenate([hb[..., :2], ha[..., 2:]], axis=-1)
+        return np.where((hb[..., 1] != 0.0)[..., None], _interp(a, hsv_to_rgb(hsv), t), a)
+    if blend == "SATURATION":
+        hsv = ha.copy()
+        hsv[..., 1] = tm * ha[..., 1] + t * hb[..., 1]
+        return _with_hsv(a, ha[..., 1] != 0.0, hsv)
+    if blend == "VALUE":
+        hsv = ha.copy()
+        hsv[..., 2] = tm * ha[..., 2] + t * hb[..., 2]
+        return hsv_to_rgb(hsv)
+    raise ValueError(blend)
+
+
+MIX_BLENDS = (
+    "MIX ADD MULTIPLY SUBTRACT SCREEN OVERLAY DIVIDE DIFFERENCE EXCLUSION DARKEN LIGHTEN DODGE BURN "
+    "SOFT_LIGHT LINEAR_LIGHT HUE SATURATION COLOR VALUE"
+).split()
+
+
+def hue_saturation_value(
+    c: np.ndarray, hue: float, saturation: float, value: float, fac: float
+) -> np.ndarray:
+    """Cycles' Hue/Saturation/Value node on colours (..., 3)."""
+    hsv = rgb_to_hsv(c)
+    h = hsv[..., 0] + hue + 0.5
+    hsv = np.stack(
+        [h - np.floor(h), np.clip(hsv[..., 1] * saturation, 0.0, 1.0), hsv[..., 2] * value], axis=-1
+    )
+    return np.maximum(fac * hsv_to_rgb(hsv) + (1.0 - fac) * c, 0.0)
+
+
+def gamma(c: np.ndarray, g: float) -> np.ndarray:
+    """Cycles' Gamma node: c^g on positive channels (others unchanged); white for g = 0."""
+    if g == 0.0:
+        return np.ones_like(c)
+    return np.where(c > 0.0, np.abs(c) ** g, c)
+
+
+def bright_contrast(c: np.ndarray, bright: float, contrast: float) -> np.ndarray:
+    """Cycles' Brightness/Contrast node: max((1 + contrast) c + bright - contrast / 2, 0)."""
+    return np.maximum((1.0 + contrast) * c + bright - 0.5 * contrast, 0.0)
+
+
+@dataclass(frozen=True, eq=False)
+class CurvesTable:
+    """An RGB Curves node's mapping as Cycles renders it: each of R, G, B of the combined curve,
+    tabulated at 257 points over [lo, hi] (the curves' points' extent, at least [0, 1]) and
+    interpolated linearly; outside it extended linearly from the ends (Extrapolated) or held."""
+
+    table: np.ndarray  # (257, 3)
+    lo: float
+    hi: float
+    extrapolate: bool
+
+    @classmethod
+    def of(cls, mapping) -> CurvesTable:
+        mapping.initialize()
+        curves = list(mapping.curves)[:4]
+        lo = min(0.0, *(c.points[0].location[0] for c in curves))
+        hi = max(1.0, *(c.points[-1].location[0] for c in curves))
+        xs = lo + np.arange(257, dtype=np.float32) / np.float32(256) * np.float32(hi - lo)
+        combined = [mapping.evaluate(curves[3], float(x)) for x in xs]
+        table = [[mapping.evaluate(curves[k], y) for k in range(3)] for y in combined]
+        return cls(np.array(table, float), lo, hi, mapping.extend == "EXTRAPOLATED")
+
+    def __call__(self, c: np.ndarray, fac: float = 1.0) -> np.ndarray:
+        """The node at factor fac on colours (..., 3): (1 - fac) c + fac curves(c)."""
+        n = len(self.table) - 1
+        rel = (c - self.lo) / (self.hi - self.lo)
+        f = np.clip(rel, 0.0, 1.0) * n
+        i = np.clip(np.floor(f).astype(np.int64), 0, n)
+        w = f - i
+        ch = np.arange(3)
+        out = (1.0 - w) * self.table[i, ch] + w * self.table[np.minimum(i + 1, n), ch]
+        if self.extrapolate:
+            low = self.table[0] + (self.table[0] - self.table[1]) * (-rel) * n
+            high = self.table[n] + (self.table[n] - self.table[n - 1]) * (rel - 1.0) * n
+            out = np.where(rel < 0.0, low, np.where(rel > 1.0, high, out))
+        return (1.0 - fac) * c + fac * out
+
+
+def _apply(term: ColourTerm, fn, label: str) -> ColourTerm | None:
+    """fn (a function of colours (..., 3)) of a term, None where that is not a ColourTerm (fn of a
+    texture times paint). A texture gets new pixels, fn of its texels: exact at texel centres,
+    between them fn of the bilinear mean where Cycles takes fn of the texels' mean (a nonlinear node
+    after an Image Texture). Paint gets fn per corner colour (see MaterialPaint)."""
+    if term.constant:
+        return ColourTerm(np.asarray(fn(term.tint), float))
+    if term.texture is not None and term.paint is not None:
+        return None
+    tint = term.tint
+    if term.texture is not None:
+        tex = term.texture
+        pixels = np.asarray(fn(tint * tex.pixels.astype(float)), np.float32)
+        return ColourTerm(np.ones(3), MaterialTexture(pixels, tex.uv_map, f"{tex.image} > {label}"))
+    paint = term.paint
+
+    def transform(rgb):
+        return fn(tint * paint.colours(rgb))
+
+    return ColourTerm(np.ones(3), paint=MaterialPaint(paint.attribute, transforms=(transform,)))
+
+
+def _pointwise(A: ColourTerm, B: ColourTerm, fn, label: str) -> ColourTerm | None:
+    """fn(A, B) (a function of two colours (..., 3)) where it is a ColourTerm: one side constant,
+    two textures through one UV map at one size (texel by texel), or paint of one attribute."""
+    if A.constant:
+        return _apply(B, lambda b: fn(A.tint, b), label)
+    if B.constant:
+        return _apply(A, lambda a: fn(a, B.tint), label)
+    ta, tb, pa, pb = A.texture, B.texture, A.paint, B.paint
+    if pa is None and pb is None and ta.uv_map == tb.uv_map and ta.pixels.shape == tb.pixels.shape:
+        pixels = fn(A.tint * ta.pixels.astype(float), B.tint * tb.pixels.astype(float))
+        texture = MaterialTexture(
+            np.asarray(pixels, np.float32), ta.uv_map, f"{ta.image}, {tb.image} > {label}"
+        )
+        return ColourTerm(np.ones(3), texture)
+    if ta is None and tb is None and pa.attribute == pb.attribute:
+        sa, sb = A.tint, B.tint
+
+        def transform(rgb):
+            return fn(sa * pa.colours(rgb), sb * pb.colours(rgb))
+
+        return ColourTerm(np.ones(3), paint=MaterialPaint(pa.attribute, transforms=(transform,)))
+    return None
+
+
+def _constants(node, *names) -> list[float] | None:
+    """The values of a node's float inputs (by identifier), None if any is linked."""
+    by_id = {s.identifier: s for s in node.inputs}
+    if any(by_id[n].is_linked for n in names):
+        return None
+    return [float(by_id[n].default_value) for n in names]
+
+
 @dataclass(frozen=True)
 class MaterialLight:
     """reflectance (3,) (the texture's mean where there is one; for paint, what a mesh without the
@@ -129,6 +377,7 @@ class MaterialLight:
     paint: MaterialPaint | None = None
     tint: np.ndarray = field(default_factory=lambda: np.ones(3))  # a factor on texture x paint
     emitted: ColourTerm | None = None  # an emission colour from a texture or paint (x strength)
+    alpha: MaterialAlpha = field(default_factory=lambda: MaterialAlpha())  # the share that is there
 
 
 def srgb_to_linear(c: np.ndarray) -> np.ndarray:
@@ -230,26 +479,45 @@ def _term(socket, material, depth: int = 0) -> ColourTerm:
             if px is None:
                 raise _Unread(f"image '{node.image.name}' without pixels (missing file?)")
             return ColourTerm(np.ones(3), MaterialTexture(px, uv, node.image.name))
+    label = f"{material.name}: {node.name}"  # names a texture's pixels after a nonlinear node
     if kind in ("ShaderNodeMix", "ShaderNodeMixRGB") and (mix := _mix_inputs(node)) is not None:
         blend, fac, a_in, b_in, clamp = mix
-        if not fac.is_linked and blend in ("MIX", "MULTIPLY", "ADD", "SUBTRACT"):
+        if not fac.is_linked and blend in MIX_BLENDS:
             f = float(fac.default_value)
             f = min(max(f, 0.0), 1.0) if clamp else f
             A, B = _term(a_in, material, depth + 1), _term(b_in, material, depth + 1)
+            got = None
             if blend == "MIX":
                 got = _combine(1.0 - f, A, f, B)
             elif blend == "ADD":
                 got = _combine(1.0, A, f, B)
             elif blend == "SUBTRACT":
                 got = _combine(1.0, A, -f, B)
-            else:  # MULTIPLY: A x ((1 - f) + f B)
+            elif blend == "MULTIPLY":  # A x ((1 - f) + f B)
                 scaled = _affine(B, f, 1.0 - f)
                 got = None if scaled is None else _product(A, scaled)
+            if got is None:  # the other blend types, and two textures or paints, texel by texel
+                got = _pointwise(A, B, lambda a, b: mix_colours(blend, f, a, b), label)
+            if got is not None and _clamps_result(node):
+                got = _apply(got, lambda c: np.clip(c, 0.0, 1.0), label)
             if got is not None:
                 return got
     if kind == "ShaderNodeInvert" and not node.inputs["Fac"].is_linked:
         f = float(node.inputs["Fac"].default_value)  # c + f (1 - 2c)
         got = _affine(_term(node.inputs["Color"], material, depth + 1), 1.0 - 2.0 * f, f)
+        if got is not None:
+            return got
+    fn = None
+    if kind == "ShaderNodeHueSaturation" and (v := _constants(node, "Hue", "Saturation", "Value", "Fac")):
+        fn = partial(hue_saturation_value, hue=v[0], saturation=v[1], value=v[2], fac=v[3])
+    elif kind == "ShaderNodeGamma" and (v := _constants(node, "Gamma")):
+        fn = partial(gamma, g=v[0])
+    elif kind == "ShaderNodeBrightContrast" and (v := _constants(node, "Bright", "Contrast")):
+        fn = partial(bright_contrast, bright=v[0], contrast=v[1])
+    elif kind == "ShaderNodeRGBCurve" and (v := _constants(node, "Fac")):
+        fn = partial(CurvesTable.of(node.mapping), fac=v[0])
+    if fn is not None:
+        got = _apply(_term(node.inputs["Color"], material, depth + 1), fn, label)
         if got is not None:
             return got
     raise _Unread(f"a {node.bl_label} node")
@@ -262,8 +530,9 @@ def _colour(socket, what: str, material, warnings: list[str]) -> ColourTerm | No
     except _Unread as e:
         warnings.append(
             f"material '{material.name}': {what} is driven by {e}; using the material's viewport colour "
-            "(read: a constant, an Image Texture through a UV map, a Color Attribute, and Mix or Invert "
-            "nodes over them with constant factors)"
+            "(read: a constant, an Image Texture through a UV map, a Color Attribute, and over them Mix, "
+            "Invert, Hue/Saturation/Value, Gamma, Brightness/Contrast and RGB Curves nodes with constant "
+            "factors and settings)"
         )
         return None
 
@@ -280,7 +549,7 @@ def read_material(material, warnings: list[str]) -> MaterialLight:
     if not compat.renders_with_nodes(material):
         # A material without nodes renders as a diffuse surface of its viewport colour.
         return MaterialLight(_viewport(material), black)
-    node = _surface_shader(material)
+    node, cut = _past_transparent(_surface_shader(material), material, warnings)
     kind = node.bl_idname if node is not None else None
     rho, em, tex, paint, tint, em_term = np.array(DEFAULT_REFLECTANCE), black, None, None, np.ones(3), None
     if kind in ("ShaderNodeBsdfPrincipled", "ShaderNodeBsdfDiffuse"):
@@ -313,7 +582,10 @@ def read_material(material, warnings: list[str]) -> MaterialLight:
             f"material '{material.name}': reflectance {tuple(np.round(rho, 3))} clamped to [0, 1]"
         )
         rho = np.clip(rho, 0.0, 1.0)
-    return MaterialLight(rho, np.maximum(em, 0.0), tex, paint, tint, em_term)
+    alpha = cut
+    if kind == "ShaderNodeBsdfPrincipled":
+        alpha = _both(cut, _alpha(node.inputs["Alpha"], material, warnings), material, warnings)
+    return MaterialLight(rho, np.maximum(em, 0.0), tex, paint, tint, em_term, alpha)
 
 
 def _emission(colour, strength, material, warnings: list[str]) -> tuple[np.ndarray, ColourTerm | None]:
@@ -336,3 +608,92 @@ def _emission(colour, strength, material, warnings: list[str]) -> tuple[np.ndarr
         np.zeros(3) if term.texture is None else term.tint * term.texture.pixels.reshape(-1, 3).mean(axis=0)
     )
     return mean, term
+
+
+# --------------------------------------------------------------------------- alpha
+
+
+@dataclass(frozen=True)
+class MaterialAlpha:
+    """A material's alpha (Cycles: alpha x the shader + (1 - alpha) x transparent): a constant in
+    [0, 1], times an alpha map where there is one (pixels (h, w) float32 in [0, 1], row 0 at the
+    bottom, sampled through uv_map as an albedo map is; image: its name, for messages)."""
+
+    constant: float = 1.0
+    pixels: np.ndarray | None = field(default=None, repr=False)
+    uv_map: str = ""
+    image: str = ""
+
+    @property
+    def opaque(self) -> bool:
+        return self.pixels is None and self.constant >= 1.0
+
+
+def alpha_pixels(image) -> np.ndarray | None:
+    """An image's alpha channel (h, w) float32, row 0 at the bottom (read at every k-th pixel above
+    MAX_TEXTURE_SIDE); None if the image has no alpha (no fourth channel, or Alpha mode None)."""
+    if image.alpha_mode == "NONE" or image.channels < 4:
+        return None
+    w, h = image.size[:]
+    if w == 0 or h == 0 or not image.has_data and not _load(image):
+        return None
+    w, h = image.size[:]
+    buf = np.empty(w * h * image.channels, np.float32)
+    image.pixels.foreach_get(buf)
+    a = buf.reshape(h, w, image.channels)[..., 3]
+    step = max(1, -(-max(a.shape) // MAX_TEXTURE_SIDE))
+    return np.ascontiguousarray(np.clip(a[::step, ::step], 0.0, 1.0), np.float32)
+
+
+def _alpha(socket, material, warnings: list[str], what: str = "Alpha") -> MaterialAlpha:
+    """The alpha a float socket gives: a constant, or an Image Texture's Alpha output through a UV
+    map; anything else is read as opaque, with a warning naming the node."""
+    if not socket.is_linked:
+        return MaterialAlpha(float(np.clip(socket.default_value, 0.0, 1.0)))
+    node, out = upstream(socket)
+    if node is not None and node.bl_idname == "ShaderNodeTexImage" and node.image is not None:
+        uv = _uv_of(node)
+        if out.name == "Alpha" and uv is not None and node.projection == "FLAT":
+            px = alpha_pixels(node.image)
+            return MaterialAlpha() if px is None else MaterialAlpha(1.0, px, uv, node.image.name)
+    label = "nodes" if node is None else f"a {node.bl_label} node"
+    warnings.append(
+        f"material '{material.name}': {what} driven by {label} is ignored; the surface is read as opaque "
+        "(read: a constant, or an Image Texture's Alpha through a UV map)"
+    )
+    return MaterialAlpha()
+
+
+def _both(a: MaterialAlpha, b: MaterialAlpha, material, warnings: list[str]) -> MaterialAlpha:
+    """The product of two alphas (a Mix Shader's over a Principled BSDF's), where at most one has a map."""
+    if a.pixels is not None and b.pixels is not None:
+        warnings.append(
+            f"material '{material.name}': two alpha maps ('{a.image}', '{b.image}'); only '{a.image}' is read"
+        )
+        b = MaterialAlpha(b.constant)
+    m = a if a.pixels is not None else b
+    return MaterialAlpha(a.constant * b.constant, m.pixels, m.uv_map, m.image)
+
+
+def _past_transparent(node, material, warnings: list[str]):
+    """(the shader under a Mix Shader of a Transparent BSDF and another shader, its alpha): the
+    older way to cut foliage out (Mix Shader's factor from an image's alpha); (node, opaque) for
+    any other node."""
+    if node is None or node.bl_idname != "ShaderNodeMixShader":
+        return node, MaterialAlpha()
+    fac, first, second = node.inputs[0], upstream(node.inputs[1])[0], upstream(node.inputs[2])[0]
+
+    def transparent(n) -> bool:
+        return n is not None and n.bl_idname == "ShaderNodeBsdfTransparent"
+
+    if transparent(first) == transparent(second):
+        return node, MaterialAlpha()
+    alpha = _alpha(fac, material, warnings, "a Mix Shader's factor")
+    if transparent(second):  # (1 - fac) x the shader: alpha is 1 - fac
+        alpha = MaterialAlpha(
+            1.0 - alpha.constant if alpha.pixels is None else 1.0,
+            None if alpha.pixels is None else np.float32(1.0) - alpha.pixels,
+            alpha.uv_map,
+            alpha.image,
+        )
+    return (second if transparent(first) else first), alpha

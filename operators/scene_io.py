@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..ovrad_addon import OvradError, Surfaces, TextureAlbedo, names, triangle_means
+from ..ovrad_addon import Coverage, OvradError, Surfaces, TextureAlbedo, names, triangle_means
 from . import materials, scene_model
 
 
@@ -43,6 +43,10 @@ class _Mesh:
     uv: np.ndarray | None = None
     tint: np.ndarray | None = None
     corners: np.ndarray | None = None
+    opacity: np.ndarray | None = None
+    alpha_maps: list = field(default_factory=list)
+    alpha_of: np.ndarray | None = None
+    alpha_uv: np.ndarray | None = None
 
 
 def _read_mesh(data, warnings: list[str], cache: dict) -> _Colors:
@@ -53,6 +57,7 @@ def _read_mesh(data, warnings: list[str], cache: dict) -> _Colors:
     out = _Colors(
         np.array([m.reflectance for m in lights])[slot], np.array([m.emission for m in lights])[slot]
     )
+    out.opacity_of = {k: m.alpha.constant for k, m in enumerate(lights)}
     for k, m in enumerate(lights):
         if not np.any(slot == k):
             continue
@@ -89,6 +94,16 @@ def _read_mesh(data, warnings: list[str], cache: dict) -> _Colors:
                 if m.texture is not None and not textured:
                     factor = m.reflectance  # tint x the image's mean colour
                 out.painted.append((k, m.paint, factor))
+        if m.alpha.pixels is not None:
+            no_uv = _lacks(data, m.alpha, None)
+            if no_uv is None:
+                out.alpha_maps.append((k, m.alpha))
+            else:  # its mean alpha, everywhere on the slot
+                warnings.append(
+                    f"a mesh with material '{name}' has no {no_uv} for alpha image '{m.alpha.image}'; "
+                    "using the image's mean alpha"
+                )
+                out.opacity_of[k] = m.alpha.constant * float(np.mean(m.alpha.pixels))
     out.slot = slot
     return out
 
@@ -134,11 +149,14 @@ class _Colors:
     tints: dict = field(default_factory=dict)
     emitting: list = field(default_factory=list)
     slot: np.ndarray | None = None
+    opacity_of: dict = field(default_factory=dict)  # slot -> constant alpha (1 where absent)
+    alpha_maps: list = field(default_factory=list)  # (material slot, MaterialAlpha) with a usable map
 
 
 def _part(data, colors: _Colors) -> _Mesh:
     """A placed mesh (world space) with its colours and, for textured slots, its UVs."""
     part = _Mesh(data.vertices, data.triangles, colors.reflectance, colors.emission)
+    _alpha_part(part, data, colors)
     if colors.emitting:
         part.emission = part.emission.copy()
         for k, term in colors.emitting:
@@ -164,6 +182,47 @@ def _part(data, colors: _Colors) -> _Mesh:
         part.tint[on] = colors.tints.get(k, 1.0)
         part.textures.append((tex.image, tex.pixels))
     return part
+
+
+def _alpha_part(part: _Mesh, data, colors: _Colors) -> None:
+    """A placed mesh's alpha: each triangle's constant, and its map and UVs where it has one."""
+    part.opacity = np.array([colors.opacity_of[k] for k in range(len(colors.opacity_of))])[colors.slot]
+    if not colors.alpha_maps:
+        return
+    part.alpha_of = np.full(len(data.triangles), -1, np.int64)
+    part.alpha_uv = np.zeros((len(data.triangles), 3, 2))
+    for k, alpha in colors.alpha_maps:
+        on = colors.slot == k
+        part.alpha_of[on] = len(part.alpha_maps)
+        part.alpha_uv[on] = data.triangle_uvs(alpha.uv_map)[on]
+        part.alpha_maps.append((alpha.image, alpha.pixels))
+
+
+def _coverage(parts: list[_Mesh]) -> Coverage | None:
+    """One Coverage over the triangles of all parts, alpha maps shared by name; None where every
+    surface is opaque."""
+    opacity = np.concatenate([p.opacity for p in parts])
+    if opacity.min(initial=1.0) >= 1.0 and not any(p.alpha_maps for p in parts):
+        return None
+    if not any(p.alpha_maps for p in parts):
+        return Coverage(opacity)
+    images: dict[str, int] = {}
+    pixels, alpha_of, uv = [], [], []
+    for p in parts:
+        n = len(p.triangles)
+        if not p.alpha_maps:
+            alpha_of.append(np.full(n, -1, np.int64))
+            uv.append(np.zeros((n, 3, 2)))
+            continue
+        remap = []
+        for name, px in p.alpha_maps:
+            if name not in images:
+                images[name] = len(pixels)
+                pixels.append(px)
+            remap.append(images[name])
+        alpha_of.append(np.array(remap + [-1], np.int64)[p.alpha_of])
+        uv.append(p.alpha_uv)
+    return Coverage(opacity, tuple(pixels), np.concatenate(alpha_of), np.concatenate(uv))
 
 
 def _material(material, warnings: list[str], cache: dict) -> materials.MaterialLight:
@@ -295,6 +354,7 @@ def read_scene(depsgraph, receivers, occluders=(), model=None) -> SceneMeshes:
         object_names=[it.name for it in items],
         receiver=np.arange(len(items)) < n_receivers,
         albedo=_albedo(parts),
+        coverage=_coverage(parts),
     )
     # The same material on many objects would repeat its warning.
     objects = [it.obj for it in items]

@@ -112,6 +112,8 @@ def fingerprint(surfaces: Surfaces, atlas: Atlas) -> str:
     h.update(atlas.beta.encode())
     if surfaces.albedo is not None:  # textures change the transport's rho and the first shot
         h.update(b"albedo" + surfaces.albedo.key())
+    if surfaces.coverage is not None:  # see-through surfaces change every ray that meets them
+        h.update(b"coverage" + surfaces.coverage.key())
     return h.hexdigest()
 
 

@@ -32,11 +32,13 @@ from .radiosity.problem import Problem, attach_sheets, both_sides_index, locate,
 from .radiosity.solver import SolveProgress, SolveState
 from .radiosity.transport import cosine_directions
 from .scene.albedo import TextureAlbedo, triangle_means
-from .scene.rays import has_embree, make_rays
+from .scene.coverage import Coverage
+from .scene.rays import has_embree, make_rays, surface_rays
 from .scene.surfaces import Surfaces, triangle_geometry
 from .settings import FINE_QUADRATURE, MAX_GATHER_RAYS, AtlasSettings, ObjectSettings, SolveSettings
 
 __all__ = [
+    "Coverage",
     "FINE_QUADRATURE",
     "MAX_GATHER_RAYS",
     "REFINE_MIN_SCALE",
@@ -80,6 +82,7 @@ __all__ = [
     "lamp_area",
     "locate",
     "make_rays",
+    "surface_rays",
     "memory",
     "names",
     "object_keys",

@@ -11,7 +11,7 @@ import numpy as np
 from ..atlas import clutter as clutter_mod
 from ..errors import OvradError
 from ..geometry import unique_rows
-from ..scene.rays import EmbreeRays, NumpyRays, make_rays
+from ..scene.rays import EmbreeRays, NumpyRays, SeeThroughRays, surface_rays
 from ..scene.surfaces import Charts, Surfaces, find_charts
 from ..settings import AtlasSettings
 
@@ -34,7 +34,7 @@ class SurfaceIndex:
     sheet_table: np.ndarray
     sheet_chart: np.ndarray
     sheet_side: np.ndarray
-    rays: NumpyRays | EmbreeRays
+    rays: NumpyRays | EmbreeRays | SeeThroughRays
     sheet_clutter: np.ndarray
 
     def sheet_of(self, triangle: np.ndarray, side: np.ndarray) -> np.ndarray:
@@ -165,7 +165,7 @@ def index_surfaces(
     charts = find_charts(surfaces, settings.crease_angle)
     if charts.count == 0:
         raise OvradError("every face has zero area: nothing to cover with patches")
-    rays = make_rays(surfaces.vertices, surfaces.triangles, backend)
+    rays = surface_rays(surfaces, backend)
     planar, flat, deviation = _chart_planarity(surfaces, charts)
     nc = charts.count
     chart_obj = clutter_mod.chart_objects(surfaces, charts)

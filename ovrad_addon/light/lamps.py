@@ -244,9 +244,10 @@ def _soft_chunk(lamp: Lamp, pts, nrm, rays, eps: float, samples: int, seed: int)
         along = np.einsum("ij,ij->i", w, axis[r]) * dist[r]
         tmax = along - np.sqrt(np.maximum(lamp.radius**2 - dist[r] ** 2 + along**2, 0.0))
         tmax = tmax * (1 - 1e-6) - 3 * eps
-    blocked = rays.occluded(shadow_origin(pts[r], nrm[r], w, eps), w, tmax)
+    through = rays.transmittance(shadow_origin(pts[r], nrm[r], w, eps), w, tmax)
     seen = np.zeros((m, k))
-    seen[r[~blocked], j[~blocked]] = cos[r[~blocked], j[~blocked]]
+    open_ = through > 0
+    seen[r[open_], j[open_]] = cos[r[open_], j[open_]] * through[open_]
     return e_n * seen.sum(axis=1) / norm, len(r)
 
 
@@ -298,12 +299,12 @@ def lamp_irradiance(
             to_light = np.broadcast_to(-axis, pts.shape)
             cos = np.einsum("ij,ij->i", nrm, to_light)
             lit = cos > 0
-            blocked = rays.occluded(
+            through = rays.transmittance(
                 shadow_origin(pts[lit], nrm[lit], to_light[lit], eps), to_light[lit], np.inf
             )
             cast += int(lit.sum())
             e = np.zeros(len(pts))
-            e[np.flatnonzero(lit)[~blocked]] = lamp.power * cos[lit][~blocked]
+            e[lit] = np.where(through > 0, lamp.power * cos[lit] * through, 0.0)
             total += e[:, None] * color
             continue
         if lamp.kind == "AREA" and jittered:
@@ -335,10 +336,10 @@ def lamp_irradiance(
             lit = (cos > 0) & (intensity > 0)
             idx = np.flatnonzero(lit)
             origin = shadow_origin(pts[idx], nrm[idx], omega[idx], eps)
-            blocked = rays.occluded(origin, omega[idx], d[idx] * (1 - 1e-6) - 3 * eps)
+            through = rays.transmittance(origin, omega[idx], d[idx] * (1 - 1e-6) - 3 * eps)
             cast += len(idx)
             e = np.zeros(len(pts))
-            keep = idx[~blocked]
-            e[keep] = intensity[keep] * cos[keep] / d2[keep]
+            keep = idx[through > 0]
+            e[keep] = intensity[keep] * cos[keep] / d2[keep] * through[through > 0]
             total += e[:, None] * color
     return total, cast

@@ -168,12 +168,14 @@ def sky_irradiance(
         if len(r_i) == 0:
             continue
         w = dirs[k_i]
-        blocked = rays.occluded(
+        through = rays.transmittance(
             shadow_origin(pts[rs[r_i]], nrm[rs[r_i]], w, eps), w, np.full(len(r_i), np.inf)
         )
         cast += len(r_i)
-        seen = np.zeros(cos.shape)  # cos where the direction is open, as a dense (points, directions) matrix
-        seen[r_i[~blocked], k_i[~blocked]] = cos[r_i[~blocked], k_i[~blocked]]
+        # cos x the share of light that gets through, as a dense (points, directions) matrix
+        seen = np.zeros(cos.shape)
+        open_ = through > 0
+        seen[r_i[open_], k_i[open_]] = cos[r_i[open_], k_i[open_]] * through[open_]
         # a running sum over the directions adds each point's terms in one order whatever points
         # share its chunk (a matrix product or a sum over a 3-d axis may not), so a point gets the
         # same bits with a mask of points or without (direct_irradiance's sky_at), on every CPU

@@ -235,7 +235,7 @@ def _near_block(H, rs, P, N, src: EmitterSamples, tree: LightTree, g, rays, eps,
     v = target - P[i]
     omega = v / np.maximum(np.linalg.norm(v, axis=1), 1e-300)[:, None]
     ask = (np.einsum("ij,ij->i", omega, N[i]) > 0) & (E.sum(axis=1) > 0)
-    seen = np.ones(len(i), bool)  # a centroid under the point's horizon: the clipped part is seen
+    seen = np.ones(len(i))  # a centroid under the point's horizon: the clipped part is seen
     cast = int(ask.sum())
     if cast:
         normal = tree.normal_t[rep[ask]]
@@ -243,7 +243,7 @@ def _near_block(H, rs, P, N, src: EmitterSamples, tree: LightTree, g, rays, eps,
         origin = shadow_origin(P[i][ask], N[i][ask], omega[ask], eps)
         seg = target[ask] - (eps * np.sign(facing))[:, None] * normal - origin
         length = np.linalg.norm(seg, axis=1)
-        seen[ask] = ~rays.occluded(origin, seg / np.maximum(length, 1e-300)[:, None], length * (1 - 1e-6))
+        seen[ask] = rays.transmittance(origin, seg / np.maximum(length, 1e-300)[:, None], length * (1 - 1e-6))
     np.add.at(H, rs[i], E * seen[:, None])
     # less what the samples picked on those triangles gave (a node's samples are one run)
     many = s_hi - s_lo

@@ -45,8 +45,9 @@ class RayHits:
 
 def ray_hits(index, origins: np.ndarray, directions: np.ndarray) -> RayHits:
     """Cast rays (origins, unit directions (m, 3)) to the surfaces: the hits where the transport
-    and the final gather look alpha up (alpha_at), on the side they arrive at."""
-    t, tri = index.rays.closest_hit(origins, directions, np.inf)
+    and the final gather look alpha up (alpha_at), on the side they arrive at. A see-through
+    surface stops a ray in proportion to its material's alpha (scene.rays.SeeThroughRays)."""
+    t, tri = index.rays.light_hit(origins, directions, np.inf)
     hit = np.flatnonzero(tri >= 0)
     tri = tri[hit]
     d = np.take(directions, hit, axis=0)

@@ -297,10 +297,17 @@ def gather_transport(
     G = _assembled(near_parts, (n, n)).tocsc()
     links = _assembled(far_parts, (n, clusters.count)).tocsr() if clusters is not None else None
     rho = np.zeros((n, 3))
-    # the albedo at the receiver points (a texture's, where there is one): rho_h its mean over D_h
+    # the albedo at the receiver points (a texture's, where there is one): rho_h its mean over D_h,
+    # over the part of D_h that is there where a material's alpha is below 1 (a leaf card's texels
+    # outside the leaf reflect nothing: their colour does not count)
     albedo = index.surfaces.reflectance_at(pts.triangle, pts.points)
-    np.add.at(rho, pts.owner, albedo * pts.weight[:, None])
-    rho /= np.maximum(np.bincount(pts.owner, weights=pts.weight, minlength=n), 1e-300)[:, None]
+    weight = pts.weight
+    if index.surfaces.coverage is not None:
+        there = index.surfaces.opacity_at(pts.triangle, pts.points) * pts.weight
+        held = np.bincount(pts.owner, weights=there, minlength=n)
+        weight = np.where(held[pts.owner] > 0, there, pts.weight)
+    np.add.at(rho, pts.owner, albedo * weight[:, None])
+    rho /= np.maximum(np.bincount(pts.owner, weights=weight, minlength=n), 1e-300)[:, None]
     cast = np.bincount(pts.owner, minlength=n) * rays_per_point
     escaped, cast = _sky_test(index, pts, escaped, cast, offset, seed)
     fraction = pooled_fraction(atlas, escaped, cast, SKY_TEST_RAYS)
@@ -345,8 +352,8 @@ def _sky_test(index, pts: ReceiverPoints, escaped: np.ndarray, cast: np.ndarray,
     nrm = pts.normals[point]
     rng = np.random.default_rng([seed, 1 << 20])
     dirs = cosine_directions(nrm, 1, rng).reshape(-1, 3)
-    out = ~index.rays.occluded(pts.points[point] + offset * nrm, dirs, np.inf)
-    escaped = escaped + np.bincount(owner[out], minlength=len(cast))
+    through = index.rays.transmittance(pts.points[point] + offset * nrm, dirs, np.inf)
+    escaped = escaped + np.bincount(owner, weights=through, minlength=len(cast))
     cast = cast.copy()
     cast[short] = SKY_TEST_RAYS
     return escaped, cast

@@ -12,6 +12,7 @@ from scipy.sparse.csgraph import connected_components
 from ..errors import OvradError
 from ..geometry import unique_rows
 from .albedo import TextureAlbedo, albedo_at, triangle_means
+from .coverage import Coverage
 
 
 @dataclass(frozen=True)
@@ -27,6 +28,8 @@ class Surfaces:
     albedo: image textures of the triangles that have one (None: none has); their reflectance is
     then each textured triangle's mean albedo, for code that needs a constant (reflectance_at()
     gives the albedo at points).
+    coverage: the materials' alpha where some triangle's is below 1 (None: every surface is
+    opaque); light passes a see-through surface in proportion (rays.SeeThroughRays).
     """
 
     vertices: np.ndarray
@@ -37,6 +40,7 @@ class Surfaces:
     object_names: tuple[str, ...]
     receiver: np.ndarray
     albedo: TextureAlbedo | None = None
+    coverage: Coverage | None = None
 
     @staticmethod
     def from_arrays(
@@ -48,6 +52,7 @@ class Surfaces:
         object_names=None,
         receiver=None,
         albedo=None,
+        coverage=None,
     ) -> Surfaces:
         """Validate and normalise input arrays; raise OvradError on unusable input."""
         v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
@@ -81,7 +86,12 @@ class Surfaces:
                 albedo = None
             else:
                 rho = triangle_means(albedo, rho, v[t])
-        return Surfaces(v, t, oi, rho, em, names, rec, albedo)
+        if coverage is not None:
+            if len(coverage.opacity) != len(t):
+                raise OvradError("alpha must describe every triangle (1 where opaque)")
+            if not np.any(coverage.see_through):
+                coverage = None
+        return Surfaces(v, t, oi, rho, em, names, rec, albedo, coverage)
 
     # Computed once per Surfaces (frozen, so the arrays they derive from never change); callers
     # must not write into them.
@@ -97,6 +107,13 @@ class Surfaces:
         if self.albedo is None or not np.any(self.albedo.varies[tri]):
             return self.reflectance[tri]
         return albedo_at(self.albedo, self.reflectance, self.corners, tri, points)
+
+    def opacity_at(self, triangles, points) -> np.ndarray:
+        """Alpha (m,) at surface points (m, 3) on triangles (m,): 1 on opaque surfaces."""
+        tri = np.asarray(triangles, np.int64)
+        if self.coverage is None:
+            return np.ones(len(tri))
+        return self.coverage.alpha(self.corners, tri, points)
 
     @cached_property
     def extent(self) -> float:

@@ -23,7 +23,8 @@ BENCH = Path(__file__).resolve().parents[2] / "benchmarks" / "real_scenes_bench.
 # the paint is read as the viewport colour), a checker floor multiplied by paint and a box mixing a
 # constant with paint 2.7 % (74 % read as viewport colours), a room lit only by a screen whose
 # emission colour is an image 5.1 % (the wall 2 cm behind the screen holds 85 % of the squared
-# error; without the image's light the room is black).
+# error; without the image's light the room is black), a terrace under alpha-cut leaf cards in
+# sun and sky 1.5 % (43 % with the cards read as opaque; reference noise 0.5 %).
 BOUNDS = {
     "doorway": 0.03,
     "lamps_doorway": 0.03,
@@ -36,6 +37,7 @@ BOUNDS = {
     "painted": 0.03,
     "mixed": 0.04,
     "screen": 0.06,
+    "foliage": 0.03,
     "sky_constant": 0.05,
     "sky_hdr": 0.06,
 }
