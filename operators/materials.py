@@ -46,11 +46,14 @@ _LINEAR_SPACES = {
 @dataclass(frozen=True)
 class MaterialTexture:
     """An albedo map: linear RGB pixels (h, w, 3) float32, row 0 at the bottom; the UV map it is
-    sampled through ('' = the mesh's active render UV map); its image's name (for messages)."""
+    sampled through ('' = the mesh's active render UV map); its image's name (for messages);
+    encoded: for an 8-bit sRGB image, its pixels as stored (sRGB-encoded), which Cycles filters
+    before it decodes them (None: the pixels are filtered as they are)."""
 
     pixels: np.ndarray
     uv_map: str
     image: str
+    encoded: np.ndarray | None = field(default=None, repr=False)
 
 
 @dataclass(frozen=True)
@@ -386,9 +389,9 @@ def srgb_to_linear(c: np.ndarray) -> np.ndarray:
     return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
 
 
-def linear_pixels(image) -> np.ndarray | None:
-    """All pixels of an image as linear RGB (h, w, 3) float32, row 0 at the bottom (an 8-bit
-    sRGB image decoded as Cycles decodes it); None if it has no pixels (a missing file)."""
+def _stored_rgb(image) -> np.ndarray | None:
+    """An image's RGB as Blender stores it (h, w, 3) float32, row 0 at the bottom; None if it has
+    no pixels (a missing file)."""
     w, h = image.size[:]
     if w == 0 or h == 0 or not image.has_data and not _load(image):
         return None
@@ -397,20 +400,35 @@ def linear_pixels(image) -> np.ndarray | None:
     buf = np.empty(w * h * channels, np.float32)
     image.pixels.foreach_get(buf)
     px = buf.reshape(h, w, channels)
-    rgb = px[..., :3] if channels >= 3 else np.repeat(px[..., :1], 3, axis=2)
-    if not image.is_float and image.colorspace_settings.name not in _LINEAR_SPACES:
-        rgb = srgb_to_linear(rgb)
-    return rgb
+    return px[..., :3] if channels >= 3 else np.repeat(px[..., :1], 3, axis=2)
 
 
-def image_pixels(image) -> np.ndarray | None:
-    """An albedo map's linear RGB pixels (h, w, 3) float32, None if it has no pixels; an image
-    larger than MAX_TEXTURE_SIDE is read at every k-th pixel."""
-    rgb = linear_pixels(image)
+def _srgb_bytes(image) -> bool:
+    """An 8-bit image in a non-linear colour space (decoded with the sRGB curve, as Cycles does)."""
+    return not image.is_float and image.colorspace_settings.name not in _LINEAR_SPACES
+
+
+def linear_pixels(image) -> np.ndarray | None:
+    """All pixels of an image as linear RGB (h, w, 3) float32, row 0 at the bottom (an 8-bit
+    sRGB image decoded as Cycles decodes it); None if it has no pixels (a missing file)."""
+    rgb = _stored_rgb(image)
+    return srgb_to_linear(rgb) if rgb is not None and _srgb_bytes(image) else rgb
+
+
+def image_pixels(image) -> tuple[np.ndarray, np.ndarray | None] | None:
+    """An albedo map's pixels: linear RGB (h, w, 3) float32, and for an 8-bit sRGB image its
+    pixels as stored (sRGB-encoded; else None), which Cycles interpolates before decoding them
+    (between a bright and a dark texel, less light than the mean of the decoded texels). None if
+    the image has no pixels; an image larger than MAX_TEXTURE_SIDE is read at every k-th pixel."""
+    rgb = _stored_rgb(image)
     if rgb is None:
         return None
     step = max(1, -(-max(rgb.shape[:2]) // MAX_TEXTURE_SIDE))
-    return np.ascontiguousarray(np.clip(rgb[::step, ::step], 0.0, None), np.float32)
+    rgb = np.ascontiguousarray(np.clip(rgb[::step, ::step], 0.0, None), np.float32)
+    if not _srgb_bytes(image):
+        return rgb, None
+    encoded = np.minimum(rgb, 1.0)
+    return srgb_to_linear(encoded), encoded
 
 
 def _load(image) -> bool:
@@ -478,7 +496,7 @@ def _term(socket, material, depth: int = 0) -> ColourTerm:
             px = image_pixels(node.image)
             if px is None:
                 raise _Unread(f"image '{node.image.name}' without pixels (missing file?)")
-            return ColourTerm(np.ones(3), MaterialTexture(px, uv, node.image.name))
+            return ColourTerm(np.ones(3), MaterialTexture(px[0], uv, node.image.name, px[1]))
     label = f"{material.name}: {node.name}"  # names a texture's pixels after a nonlinear node
     if kind in ("ShaderNodeMix", "ShaderNodeMixRGB") and (mix := _mix_inputs(node)) is not None:
         blend, fac, a_in, b_in, clamp = mix

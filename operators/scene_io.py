@@ -30,7 +30,7 @@ class SceneMeshes:
 @dataclass
 class _Mesh:
     """One object's arrays for read_scene: vertices (V, 3) world, triangles (T, 3), reflectance
-    (T, 3), emission (T, 3); textures: (image name, pixels) of its albedo maps, image_of (T,) the
+    (T, 3), emission (T, 3); textures: (image name, pixels, sRGB-encoded) of its albedo maps, image_of (T,) the
     map of each triangle (-1: none) and uv (T, 3, 2) (None when no triangle has a map); corners
     (T, 3, 3) the painted colour at each triangle corner, NaN where not painted (None: nowhere)."""
 
@@ -124,13 +124,15 @@ def _emitted(data, term, on: np.ndarray) -> np.ndarray:
     corners = data.vertices[data.triangles[tri]]
     uv = np.zeros((len(tri), 3, 2))
     images, image_of = (), np.full(len(tri), -1, np.int64)
+    srgb = ()
     if term.texture is not None:
-        images, image_of = (term.texture.pixels,), np.zeros(len(tri), np.int64)
+        images, srgb = _engine_image(term.texture)
+        images, srgb, image_of = (images,), (srgb,), np.zeros(len(tri), np.int64)
         uv = data.triangle_uvs(term.texture.uv_map)[tri]
     paint = None
     if term.paint is not None:
         paint = term.paint.colours(data.triangle_colors(term.paint.attribute)[tri])
-    table = TextureAlbedo(images, image_of, uv, np.ones((len(tri), 3)), corners=paint)
+    table = TextureAlbedo(images, image_of, uv, np.ones((len(tri), 3)), corners=paint, srgb=srgb)
     return triangle_means(table, np.zeros((len(tri), 3)), corners, clip=False) * term.tint
 
 
@@ -180,7 +182,7 @@ def _part(data, colors: _Colors) -> _Mesh:
         part.image_of[on] = len(part.textures)
         part.uv[on] = uvs[tex.uv_map][on]
         part.tint[on] = colors.tints.get(k, 1.0)
-        part.textures.append((tex.image, tex.pixels))
+        part.textures.append((tex.image, *_engine_image(tex)))
     return part
 
 
@@ -225,6 +227,12 @@ def _coverage(parts: list[_Mesh]) -> Coverage | None:
     return Coverage(opacity, tuple(pixels), np.concatenate(alpha_of), np.concatenate(uv))
 
 
+def _engine_image(tex) -> tuple[np.ndarray, bool]:
+    """(the pixels the engine samples, whether they are sRGB-encoded) of a MaterialTexture: an
+    8-bit sRGB image's stored values, decoded after interpolation as Cycles does; else linear."""
+    return (tex.pixels, False) if tex.encoded is None else (tex.encoded, True)
+
+
 def _material(material, warnings: list[str], cache: dict) -> materials.MaterialLight:
     """read_material once per material of a scene read (an image's pixels are read once); a node
     setup the reader did not foresee gives the viewport colour and a warning."""
@@ -248,7 +256,7 @@ def _albedo(parts: list[_Mesh]) -> TextureAlbedo | None:
     if not any(p.textures or p.corners is not None for p in parts):
         return None
     images: dict[str, int] = {}
-    pixels = []
+    pixels, srgb = [], []
     image_of, uv, tint = [], [], []
     for p in parts:
         n = len(p.triangles)
@@ -258,10 +266,11 @@ def _albedo(parts: list[_Mesh]) -> TextureAlbedo | None:
             uv.append(np.zeros((n, 3, 2)))
             continue
         remap = []
-        for name, px in p.textures:
+        for name, px, encoded in p.textures:
             if name not in images:
                 images[name] = len(pixels)
                 pixels.append(px)
+                srgb.append(encoded)
             remap.append(images[name])
         remap = np.array(remap + [-1], np.int64)  # -1 -> -1 (the last entry)
         image_of.append(remap[p.image_of])
@@ -278,6 +287,7 @@ def _albedo(parts: list[_Mesh]) -> TextureAlbedo | None:
         uv=np.concatenate(uv),
         tint=np.concatenate(tint),
         corners=corners,
+        srgb=tuple(srgb),
     )
 
 

@@ -14,7 +14,8 @@ from ..scene.surfaces import Surfaces, triangle_geometry
 @dataclass(frozen=True)
 class EmitterSamples:
     """A fixed quadrature of the emitting surfaces: points (k, 3), unit normals (k, 3), the area
-    each point stands for (k,), and its emitted radiance (k, 3)."""
+    each point stands for (k,), and its emitted radiance (k, 3) (of picked samples, scaled per
+    channel: emitter_samples)."""
 
     points: np.ndarray
     normals: np.ndarray
@@ -43,7 +44,8 @@ def emitter_samples(
     samples, so the result is smooth (no noise); its error is that of a midpoint rule. Each
     triangle gets points in proportion to its power, as the centroids of its k^2 congruent
     sub-triangles; when there are more emitting triangles than points, `count` of them are
-    picked by systematic sampling on their power, each point standing for an equal power.
+    picked by systematic sampling on their power, each point standing for an equal power, its
+    colour scaled per channel so that the points emit the triangles' power in each channel.
     """
     tri = np.flatnonzero(np.asarray(emitters, bool) & (surfaces.emission.sum(axis=1) > 0))
     c = surfaces.corners[tri]
@@ -64,11 +66,19 @@ def emitter_samples(
         # triangle's at most what an even spread of the samples over the area would give it: its
         # near field is as faint as its light, and the search for near triangles stays local)
         spacing = np.minimum(np.sqrt(total / count / radiance.sum(axis=1)), np.sqrt(area.sum() / count))
+        weight = area[pick] * (total / count) / power[pick]
+        # picked on the power summed over the channels, the samples give a colour more or fewer
+        # samples than its share (a grid mesh is picked row by row, and the stride can keep landing
+        # in the same columns: 16 samples on a panel half red, half blue give one half up to 23 %
+        # too much light, the other too little); each channel is scaled so that the samples emit
+        # the emitters' power in it (a single-colour emitter's scale is 1)
+        sampled = weight @ radiance[pick]
+        scale_rgb = np.divide(area @ radiance, sampled, out=np.ones(3), where=sampled > 0)
         return EmitterSamples(
             pts,
             normal[pick],
-            area[pick] * (total / count) / power[pick],
-            radiance[pick],
+            weight,
+            radiance[pick] * scale_rgb,
             corners=c,
             triangle_radiance=radiance,
             spacing=spacing,

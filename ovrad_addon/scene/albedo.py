@@ -5,7 +5,8 @@ reflectance: the bake needs the albedo
 at each vertex or texel, and the transport the mean albedo over each patch's support (taken at
 the patch's receiver points). Images are linear RGB (the reader converts sRGB as Cycles does),
 sampled bilinearly between texel centres with wrap-around, which is what Cycles' Image Texture
-does with its default Linear interpolation and Repeat extension. Painted colours are given per
+does with its default Linear interpolation and Repeat extension. An 8-bit sRGB image is kept as
+stored and decoded after the interpolation, as Cycles does (TextureAlbedo.srgb). Painted colours are given per
 triangle corner (linear RGB) and interpolated linearly across the triangle, as Cycles interpolates
 a Color Attribute.
 """
@@ -29,13 +30,16 @@ class TextureAlbedo:
     corners: None, or (T, 3, 3) linear RGB painted at each triangle corner where finite (NaN: the
     triangle is not painted), interpolated linearly: the albedo where the triangle has no map, a
     factor on the map where it has one (a texture multiplied by a colour attribute). A triangle with
-    neither has its constant reflectance."""
+    neither has its constant reflectance. srgb: per image, whether it holds sRGB-encoded values
+    (an 8-bit sRGB texture) that are decoded to linear after the bilinear interpolation (empty:
+    every image is linear)."""
 
     images: tuple = field(repr=False)
     image_of: np.ndarray = field(repr=False)
     uv: np.ndarray = field(repr=False)
     tint: np.ndarray = field(repr=False)
     corners: np.ndarray | None = field(default=None, repr=False)
+    srgb: tuple = field(default=(), repr=False)
 
     def __post_init__(self) -> None:
         n = len(self.image_of)
@@ -74,7 +78,19 @@ class TextureAlbedo:
         if self.corners is not None:  # a key without paint stays what it was
             h.update(b"painted")
             add_array(h, self.corners, dtype=False)
+        if any(self.srgb):
+            h.update(b"srgb" + bytes(bool(f) for f in self.srgb))
         return h.digest()
+
+    def encoded(self, k: int) -> bool:
+        """Whether image k holds sRGB-encoded values, decoded after interpolation."""
+        return k < len(self.srgb) and bool(self.srgb[k])
+
+
+def srgb_decode(c: np.ndarray) -> np.ndarray:
+    """The sRGB transfer function inverted (encoded values in [0, 1] to linear)."""
+    c = np.clip(c, 0.0, 1.0)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
 
 
 def bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -139,7 +155,10 @@ def albedo_at(
         t = tri[sel]
         bary = barycentric(corners[t], np.asarray(points, np.float64).reshape(-1, 3)[sel])
         uv = np.einsum("mk,mkj->mj", bary, textures.uv[t])
-        colour = bilinear(np.asarray(textures.images[k], np.float64), uv) * textures.tint[t]
+        colour = bilinear(np.asarray(textures.images[k], np.float64), uv)
+        if textures.encoded(k):
+            colour = srgb_decode(colour)
+        colour = colour * textures.tint[t]
         both = textures.has_paint[t]
         if np.any(both):  # the map multiplied by the paint
             colour[both] *= np.einsum("mk,mkj->mj", bary[both], textures.corners[t[both]])
