@@ -29,7 +29,32 @@ QUALITY = {
 _LEVELS = (*QUALITY, "CUSTOM")
 
 # The choices of a bake (the scene's settings and the bake operators' own properties).
-IMAGE_SIZE = dict(default=1024, min=1, max=16384)  # texels, width and height
+IMAGE_SIZE = dict(default=0, min=0, max=16384)  # texels, width and height; 0: from the texel density
+# Texels per metre of a lightmap: a 6 m wall gets 240 texels, a 40 cm bench 16.
+TEXEL_DENSITY = dict(
+    description="Lightmap texels per metre of surface (times each object's Lightmap Scale)",
+    default=40.0,
+    min=1e-3,
+    max=1e5,
+    soft_min=1.0,
+    soft_max=1000.0,
+)
+MAX_IMAGE_SIZE = dict(
+    description="Largest lightmap width and height: a mesh that needs more at the texel density is not baked",
+    default=4096,
+    min=4,
+    max=16384,
+)
+IMAGE_MARGIN = 4  # texels filled around UV islands; islands of a UV map ovrad makes are this far apart
+IMAGE_FORMATS = (
+    ("OPEN_EXR", "OpenEXR", "32-bit float, linear values"),
+    (
+        "PNG",
+        "PNG 16-bit",
+        "16 bits per channel, linear values times 2^-exposure; the exposure is in the file's metadata "
+        "(ovrad:exposure) and the image's custom property ovrad_exposure",
+    ),
+)
 BAKE_DOMAINS = (
     ("POINT", "Vertex", "One value per vertex: angle-weighted average of its face corners (smooth)"),
     ("CORNER", "Face Corner", "One value per face corner: keeps hard edges between faces"),
@@ -264,19 +289,28 @@ class OVRAD_PG_settings(bpy.types.PropertyGroup):
     )
     bake_uv_map: StringProperty(
         name="UV Map",
-        description="UV map of an image bake (empty: each mesh's active render UV map)",
+        description=(
+            "UV map of an image bake (empty: each mesh's active render UV map when it is fit for a "
+            "lightmap, else the UV map 'ovrad_lightmap' that ovrad makes)"
+        ),
         default="",
         maxlen=63,
     )
     bake_image_size: IntProperty(
         name="Image Size",
-        description="Width and height of a baked image, in texels",
+        description="Width and height of a baked image, in texels (0: from the texel density)",
         soft_max=8192,
         **IMAGE_SIZE,
     )
+    bake_texel_density: FloatProperty(name="Texel Density", **TEXEL_DENSITY)
+    bake_max_size: IntProperty(name="Max Size", **MAX_IMAGE_SIZE)
+    bake_image_format: EnumProperty(name="Format", items=IMAGE_FORMATS, default="OPEN_EXR")
     bake_image_path: StringProperty(
         name="File",
-        description="OpenEXR file of an image bake; {object} is replaced by the object's name",
+        description=(
+            "Image file of an image bake; {object} is replaced by the object's name, a path without "
+            "an extension gets the format's"
+        ),
         default="//ovrad/{object}.exr",
         subtype="FILE_PATH",
     )
@@ -319,6 +353,15 @@ class OVRAD_PG_object(bpy.types.PropertyGroup):
             ("BOTH", "Both", "Both sides (a two-sided card or wall)"),
         ),
         default=_OBJECT.sides,
+    )
+    lightmap_scale: FloatProperty(
+        name="Lightmap Scale",
+        description="Texel density multiplier of this object's lightmap (2: twice the texels per metre)",
+        default=1.0,
+        min=1e-3,
+        max=1000.0,
+        soft_min=0.1,
+        soft_max=10.0,
     )
 
 

@@ -30,9 +30,11 @@ class SceneMeshes:
 @dataclass
 class _Mesh:
     """One object's arrays for read_scene: vertices (V, 3) world, triangles (T, 3), reflectance
-    (T, 3), emission (T, 3); textures: (image name, pixels, sRGB-encoded) of its albedo maps, image_of (T,) the
-    map of each triangle (-1: none) and uv (T, 3, 2) (None when no triangle has a map); corners
-    (T, 3, 3) the painted colour at each triangle corner, NaN where not painted (None: nowhere)."""
+    (T, 3), emission (T, 3); textures: (image name, pixels, whether sRGB-encoded) of its albedo
+    maps, image_of (T,) the map of each triangle (-1: none) and uv (T, 3, 2) (None when no triangle
+    has a map); corners (T, 3, 3) the painted colour at each triangle corner, NaN where not painted
+    (None: nowhere); opacity (T,), alpha_maps (image name, alpha (h, w)), alpha_of (T,), alpha_uv
+    (T, 3, 2): its alpha, as textures."""
 
     vertices: np.ndarray
     triangles: np.ndarray

@@ -42,6 +42,9 @@ PROP_OVERLAP_KEY = "ovrad_overlap_key"
 PROP_OVERLAP_QUADRATURE = "ovrad_overlap_quadrature"
 
 IMAGE_SUFFIX = "_ovrad"  # an image bake of object X is the image data block X + IMAGE_SUFFIX
+LIGHTMAP_UV = "ovrad_lightmap"  # the UV map an image bake makes where a mesh has none fit for a lightmap
+PROP_LIGHTMAP_UV = "ovrad_lightmap_uv"  # on that mesh: digest of the UV map ovrad made (only it is replaced)
+PROP_EXPOSURE = "ovrad_exposure"  # on a 16-bit PNG bake's image: its values are v / 65535 x 2^exposure
 
 COLLECTION = "ovrad"
 ENVIRONMENT = "ovrad_environment"  # the atlas object of every rendered mesh without an atlas

@@ -124,11 +124,52 @@ OPTIONS = [
     ("bake", "--quantity", dict(choices=("radiance", "irradiance"), default="radiance")),
     ("bake", "--attribute", dict(default="ovrad_radiance", help="vertex: colour attribute name")),
     ("bake", "--domain", dict(choices=("POINT", "CORNER"), default="POINT", help="vertex: attribute domain")),
-    ("bake", "--uv", dict(default="", help="image: UV map name (default: the active render UV map)")),
-    ("bake", "--size", dict(type=int, default=1024, help="image: width and height in texels")),
-    ("bake", "--margin", dict(type=int, default=16, help="image: dilation margin in texels")),
-    ("bake", "--image-path", dict(help="image: EXR path, {object}: its name (OUTDIR/ovrad/{object}.exr)")),
+    (
+        "bake",
+        "--uv",
+        dict(
+            default="auto",
+            help="image: UV map name, or auto (default): the active render UV map when fit for a "
+            "lightmap, else the UV map ovrad_lightmap that ovrad makes",
+        ),
+    ),
+    (
+        "bake",
+        "--texel-density",
+        dict(
+            type=float,
+            help="image: lightmap texels per metre (default 40; times each object's Lightmap Scale)",
+        ),
+    ),
+    ("bake", "--max-size", dict(type=int, help="image: largest width and height from the density (4096)")),
+    (
+        "bake",
+        "--size",
+        dict(type=int, default=0, help="image: width and height in texels (0: from the density)"),
+    ),
+    (
+        "bake",
+        "--margin",
+        dict(type=int, default=4, help="image: dilation margin and island padding in texels"),
+    ),
+    (
+        "bake",
+        "--format",
+        dict(
+            choices=("exr", "png16"),
+            default="exr",
+            help="image: 32-bit float OpenEXR, or 16-bit PNG of linear values x 2^-exposure (exposure "
+            "in the PNG's metadata and the report)",
+        ),
+    ),
+    (
+        "bake",
+        "--image-path",
+        dict(help="image: file path, {object}: its name (OUTDIR/ovrad/{object}.exr or .png)"),
+    ),
 ]
+
+FORMATS = {"exr": "OPEN_EXR", "png16": "PNG"}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -147,7 +188,7 @@ def parse(argv: list[str]) -> argparse.Namespace:
         raise BatchError("--output and --in-place exclude each other")
     if not args.in_place and not args.output:
         raise BatchError("nothing would be saved: give --output OUT.blend (or --in-place)")
-    for name in ("patch_count", "size", "picture_size", "picture_samples", "rays_per_point"):
+    for name in ("patch_count", "picture_size", "picture_samples", "rays_per_point"):
         v = getattr(args, name)
         if v is not None and v < 1:
             raise BatchError(f"--{name.replace('_', '-')} must be at least 1, got {v}")
@@ -163,6 +204,14 @@ def parse(argv: list[str]) -> argparse.Namespace:
         raise BatchError(f"--patch-size must be positive, got {args.patch_size}")
     if args.tolerance is not None and not 0 < args.tolerance < 1:
         raise BatchError(f"--tolerance must be between 0 and 1, got {args.tolerance}")
+    if not 0 <= args.size <= 16384:
+        raise BatchError(f"--size must be between 0 and 16384, got {args.size}")
+    if args.max_size is not None and not 4 <= args.max_size <= 16384:
+        raise BatchError(f"--max-size must be between 4 and 16384, got {args.max_size}")
+    if args.texel_density is not None and not 0 < args.texel_density <= 1e5:
+        raise BatchError(f"--texel-density must be positive (at most 100000), got {args.texel_density}")
+    if not 0 <= args.margin <= 256:
+        raise BatchError(f"--margin must be between 0 and 256, got {args.margin}")
     if args.receivers:
         args.receivers = [n for item in args.receivers for n in item.split(",") if n]
     return args
@@ -280,6 +329,11 @@ def apply_settings(props, args, module) -> None:
     props.bake_target, props.bake_quantity = args.target.upper(), args.quantity.upper()
     props.bake_attribute, props.bake_domain = args.attribute, args.domain
     props.bake_direct = args.direct == "points"
+    if args.texel_density is not None:
+        props.bake_texel_density = args.texel_density
+    if args.max_size is not None:
+        props.bake_max_size = args.max_size
+    props.bake_image_format = FORMATS[args.format]
 
 
 def output_paths(args) -> tuple[str, str]:
@@ -320,8 +374,9 @@ def run_solve(module) -> dict:
     return jobs[-1].stats() if jobs else {}
 
 
-def show_bake(obj, args, names) -> np.ndarray:
-    """Give a receiver an emission-only material showing its bake; return its baked RGB values."""
+def show_bake(obj, args, names, image=None) -> np.ndarray:
+    """Give a receiver an emission-only material showing its bake (image: its entry in the report's
+    `images`); return its baked RGB values."""
     mat = bpy.data.materials.new(f"{obj.name}_ovrad_picture")
     if mat.node_tree is None:
         mat.use_nodes = True  # Blender < 5.0
@@ -338,14 +393,16 @@ def show_bake(obj, args, names) -> np.ndarray:
             data.data.foreach_get("color", values)
     else:
         src = tree.nodes.new("ShaderNodeTexImage")
-        src.image = bpy.data.images.get(obj.name + names.IMAGE_SUFFIX)
+        src.image = bpy.data.images.get(obj.name + names.IMAGE_SUFFIX) if image else None
         values = np.empty(len(src.image.pixels) if src.image else 0, np.float32)
         if src.image:
             src.image.pixels.foreach_get(values)
-        if args.uv:
             uv = tree.nodes.new("ShaderNodeUVMap")
-            uv.uv_map = args.uv
+            uv.uv_map = image["uv_map"]
             tree.links.new(uv.outputs["UV"], src.inputs["Vector"])
+            scale = 2.0 ** (image["exposure"] or 0)  # a 16-bit PNG holds values x 2^-exposure
+            emit.inputs["Strength"].default_value = scale
+            values[np.arange(len(values)) % 4 != 3] *= scale
     tree.links.new(src.outputs["Color"], emit.inputs["Color"])
     obj.data.materials.clear()
     obj.data.materials.append(mat)
@@ -353,12 +410,15 @@ def show_bake(obj, args, names) -> np.ndarray:
     return values[values[:, 3] > 0, :3]
 
 
-def render_picture(scene, receivers, atlases, args, names) -> None:
-    """After saving: receivers show their bake as emission, lamps and atlases hidden, Cycles, no bounces."""
+def render_picture(scene, receivers, atlases, args, names, images) -> None:
+    """After saving: receivers show their bake as emission, lamps and atlases hidden, Cycles, no
+    bounces (images: the report's entries of an image bake)."""
     for obj in scene.objects:
         if obj.type == "LIGHT" or obj in atlases:
             obj.hide_render = True
-    values = np.concatenate([np.zeros((1, 3))] + [show_bake(o, args, names) for o in receivers])
+    by_object = {e["object"]: e for e in images}
+    shown = [show_bake(o, args, names, by_object.get(o.name)) for o in receivers]
+    values = np.concatenate([np.zeros((1, 3)), *shown])
     bright = float(np.percentile(values.max(axis=1), 95))  # exposure: this maps to 0.8
     c = scene.cycles
     scene.render.engine, c.device, c.samples = "CYCLES", "CPU", args.picture_samples
@@ -412,8 +472,9 @@ def refine(scene, receivers, atlases, names) -> list | None:
     return None if sum(len(o.data.vertices) for o in finer) == count else finer
 
 
-def bake(args, receivers, out: str, names) -> tuple[list[str], list[str]]:
-    """Bake to vertex colours or images; returns (image files, receivers not baked for lack of UVs)."""
+def bake(args, receivers, out: str, module) -> tuple[list[dict], list[dict]]:
+    """Bake to vertex colours or images; returns (one {object, path, uv_map, size, format,
+    exposure} per image written, one {object, why} per receiver not baked to an image)."""
     if args.target == "vertex":
         operator(
             bpy.ops.ovrad.bake_vertex,
@@ -422,28 +483,31 @@ def bake(args, receivers, out: str, names) -> tuple[list[str], list[str]]:
             quantity=args.quantity.upper(),
         )
         return [], []
-    with_uv = [o for o in receivers if len(o.data.uv_layers)]
-    skipped = [o.name for o in receivers if o not in with_uv]
-    if not with_uv:
-        raise BatchError(
-            "no receiver has a UV map to bake an image through: unwrap them or use --target vertex"
-        )
-    for name in skipped:
-        print(f"ovrad: '{name}' has no UV map: not baked to an image", flush=True)
-    template = args.image_path or os.path.join(os.path.dirname(out), "ovrad", "{object}.exr")
+    template = args.image_path or os.path.join(os.path.dirname(out), "ovrad", "{object}")
     if args.in_place and not args.image_path:
-        template = "//ovrad/{object}.exr"
-    select(with_uv)
-    operator(
-        bpy.ops.ovrad.bake_image,
-        uv_map=args.uv,
-        size=args.size,
-        margin=args.margin,
-        quantity=args.quantity.upper(),
-        filepath=template,
-    )
-    images = [bpy.path.abspath(bpy.data.images[o.name + names.IMAGE_SUFFIX].filepath_raw) for o in with_uv]
-    return images, skipped
+        template = "//ovrad/{object}"  # the operator adds the format's extension
+    props = bpy.context.scene.ovrad
+    select(receivers)
+    results = []
+    remove = module.operators.bake_image.add_listener(results.append)
+    try:
+        operator(
+            bpy.ops.ovrad.bake_image,
+            uv_map=args.uv,
+            size=args.size,
+            texel_density=props.bake_texel_density,
+            max_size=props.bake_max_size,
+            margin=args.margin,
+            quantity=args.quantity.upper(),
+            file_format=FORMATS[args.format],
+            filepath=template,
+        )
+    finally:
+        remove()
+    result = results[-1]
+    for n in result["not_baked"]:
+        print(f"ovrad: warning: '{n['object']}' not baked to an image: {n['why']}", flush=True)
+    return result["images"], result["not_baked"]
 
 
 def save(args, out: str) -> None:
@@ -456,7 +520,8 @@ def save(args, out: str) -> None:
 def make_report(
     args, module, props, paths, receivers, atlases, stats, images, skipped, skipped_objects
 ) -> dict:
-    """The JSON report (without its seconds); skipped: receivers without a UV map (image bakes);
+    """The JSON report (without its seconds); images: one {object, path, uv_map, size, format,
+    exposure} per lightmap; skipped: [{object, why}] of the receivers an image bake left out;
     skipped_objects: [{object, why}] of the objects that could not be baked at all."""
     src, out = paths
     keys = ("rays", "unshot_fraction", "shots", "converged")
@@ -524,13 +589,13 @@ def run(args) -> dict:
                 break
             atlases = finer
             stats = stages.run(f"solve{k + 2}", run_solve, module)
-        images, skipped = stages.run("bake", bake, args, receivers, out, engine.names)
+        images, skipped = stages.run("bake", bake, args, receivers, out, module)
         stages.run("save", save, args, out)
         report = make_report(
             args, module, scene.ovrad, (src, out), receivers, atlases, stats, images, skipped, skipped_objects
         )
         if args.picture:
-            stages.run("picture", render_picture, scene, receivers, atlases, args, engine.names)
+            stages.run("picture", render_picture, scene, receivers, atlases, args, engine.names, images)
     except engine.errors.OvradError as e:  # a user error the engine found: one line, like ours
         raise BatchError(str(e).splitlines()[0]) from None
     report["seconds"] = stages.rounded()

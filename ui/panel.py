@@ -80,7 +80,7 @@ class OVRAD_PT_bake(_SubPanel, bpy.types.Panel):
     bl_label = "Bake"
 
     def draw(self, context):
-        draw_bake(_split(self.layout), context.scene.ovrad)
+        draw_bake(_split(self.layout), context.scene.ovrad, context.active_object)
 
 
 class OVRAD_PT_display(_SubPanel, bpy.types.Panel):
@@ -128,8 +128,9 @@ def draw_solve(layout) -> None:
     box.operator("ovrad.cancel_solve", icon="CANCEL")
 
 
-def draw_bake(layout, props) -> None:
-    """Bake settings, the Bake button of the chosen target, and the Preview toggle."""
+def draw_bake(layout, props, obj=None) -> None:
+    """Bake settings, the Bake button of the chosen target, and the Preview toggle; for images also
+    the active mesh's Lightmap Scale."""
     col = layout.column()
     col.prop(props, "bake_target")
     col.prop(props, "bake_quantity")
@@ -149,10 +150,23 @@ def draw_bake(layout, props) -> None:
     else:
         col.prop(props, "bake_uv_map")
         col.prop(props, "bake_image_size")
+        row = col.row()
+        row.active = props.bake_image_size == 0  # the density sets the size only when no size is given
+        row.prop(props, "bake_texel_density")
+        row = col.row()
+        row.active = props.bake_image_size == 0
+        row.prop(props, "bake_max_size")
+        col.prop(props, "bake_image_format")
         col.prop(props, "bake_image_path")
         op = layout.operator("ovrad.bake_image", icon="IMAGE_DATA")
         op.uv_map, op.size = props.bake_uv_map, props.bake_image_size
+        op.texel_density, op.max_size = props.bake_texel_density, props.bake_max_size
         op.filepath, op.quantity = props.bake_image_path, props.bake_quantity
+        op.file_format = props.bake_image_format
+        if obj is not None and obj.type == "MESH" and not attributes.is_atlas(obj):
+            box = layout.box()
+            box.label(text=f"Object: {obj.name}", icon="OBJECT_DATA")
+            box.prop(obj.ovrad, "lightmap_scale")
 
 
 # Parents before their sub-panels; sub-panels show in this order.

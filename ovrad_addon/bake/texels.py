@@ -52,39 +52,12 @@ def rasterize(uv, world, triangle_ids, width: int, height: int, inset: float = 0
     ids = np.asarray(triangle_ids, np.int64).reshape(-1)
     if not (len(uv) == len(world) == len(ids)):
         raise OvradError("uv, world and triangle_ids must have one row per triangle")
-    # Texel space: centres sit at integer + 0.5.
-    px = uv * np.array([width, height], float)
-    a, b, c = px[:, 0], px[:, 1], px[:, 2]
-    area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
-    lo = np.floor(px.min(axis=1) - 0.5).astype(np.int64) + 1  # first centre index >= min
-    hi = np.ceil(px.max(axis=1) - 0.5).astype(np.int64) - 1  # last centre index <= max
-    lo = np.maximum(lo, 0)
-    hi = np.minimum(hi, [width - 1, height - 1])
-    hi = np.maximum(hi, lo - 1)  # an empty range stays empty
-    ok = np.isfinite(area2) & (np.abs(area2) > 1e-300) & np.all(np.isfinite(px), axis=(1, 2))
-    nx, ny = hi[:, 0] - lo[:, 0] + 1, hi[:, 1] - lo[:, 1] + 1
-    count = np.where(ok, nx * ny, 0)
     texel, tri, wts = [], [], []
-    start = 0
-    cum = np.cumsum(count)
-    while start < len(uv):
-        # triangles [start, stop) hold at most _CHUNK candidates (at least one triangle per chunk)
-        base = cum[start - 1] if start else 0
-        stop = max(start + 1, int(np.searchsorted(cum, base + _CHUNK, side="right")))
-        sel = np.arange(start, stop)
-        cnt = count[sel]
-        owner = np.repeat(sel, cnt)
-        if len(owner):
-            offset = np.arange(len(owner)) - np.repeat(np.cumsum(cnt) - cnt, cnt)
-            ix = lo[owner, 0] + offset % nx[owner]
-            iy = lo[owner, 1] + offset // nx[owner]
-            p = np.stack([ix + 0.5, iy + 0.5], axis=1)
-            w = _barycentric(p, a[owner], b[owner], c[owner], area2[owner])
-            inside = np.all(w >= -_EDGE_TOL, axis=1)
-            texel.append((iy * width + ix)[inside])
-            tri.append(owner[inside])
-            wts.append(w[inside])
-        start = stop
+    for owner, ix, iy, w in _candidates(uv, width, height):
+        inside = np.all(w >= -_EDGE_TOL, axis=1)
+        texel.append((iy * width + ix)[inside])
+        tri.append(owner[inside])
+        wts.append(w[inside])
     texel = np.concatenate(texel) if texel else np.zeros(0, np.int64)
     tri = np.concatenate(tri) if tri else np.zeros(0, np.int64)
     wts = np.concatenate(wts) if wts else np.zeros((0, 3))
@@ -99,6 +72,40 @@ def rasterize(uv, world, triangle_ids, width: int, height: int, inset: float = 0
         wts = (1.0 - inset) * wts + inset / 3.0
     points = np.einsum("kj,kjd->kd", wts, world[tri])
     return Texels(texel, ids[tri], points, wts)
+
+
+def _candidates(uv, width: int, height: int):
+    """Per chunk of triangles: (owner, ix, iy, w) for every texel centre in a triangle's UV bounding
+    box: its triangle (k,), column and row (k,), barycentric weights (k, 3) (negative outside).
+    Triangles with no area in UV space, or not finite, give none."""
+    # Texel space: centres sit at integer + 0.5.
+    px = uv * np.array([width, height], float)
+    a, b, c = px[:, 0], px[:, 1], px[:, 2]
+    area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    lo = np.floor(px.min(axis=1) - 0.5).astype(np.int64) + 1  # first centre index >= min
+    hi = np.ceil(px.max(axis=1) - 0.5).astype(np.int64) - 1  # last centre index <= max
+    lo = np.maximum(lo, 0)
+    hi = np.minimum(hi, [width - 1, height - 1])
+    hi = np.maximum(hi, lo - 1)  # an empty range stays empty
+    ok = np.isfinite(area2) & (np.abs(area2) > 1e-300) & np.all(np.isfinite(px), axis=(1, 2))
+    nx, ny = hi[:, 0] - lo[:, 0] + 1, hi[:, 1] - lo[:, 1] + 1
+    count = np.where(ok, nx * ny, 0)
+    start = 0
+    cum = np.cumsum(count)
+    while start < len(uv):
+        # triangles [start, stop) hold at most _CHUNK candidates (at least one triangle per chunk)
+        base = cum[start - 1] if start else 0
+        stop = max(start + 1, int(np.searchsorted(cum, base + _CHUNK, side="right")))
+        sel = np.arange(start, stop)
+        cnt = count[sel]
+        owner = np.repeat(sel, cnt)
+        if len(owner):
+            offset = np.arange(len(owner)) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+            ix = lo[owner, 0] + offset % nx[owner]
+            iy = lo[owner, 1] + offset // nx[owner]
+            p = np.stack([ix + 0.5, iy + 0.5], axis=1)
+            yield owner, ix, iy, _barycentric(p, a[owner], b[owner], c[owner], area2[owner])
+        start = stop
 
 
 def _barycentric(p, a, b, c, area2) -> np.ndarray:
@@ -157,3 +164,63 @@ def to_image(
     mask = np.zeros(height * width, bool)
     mask[texels.texel] = True
     return img.reshape(height, width, channels), mask.reshape(height, width)
+
+
+# A UV map is unfit for a lightmap when more than this share of the texel centres its triangles
+# cover lie strictly inside two or more of them (overlapping or mirrored islands).
+OVERLAP_SHARE = 1e-3
+# ... or when triangles with no area in UV space carry more than this share of the world area.
+COLLAPSED_SHARE = 1e-3
+
+
+def _areas(uv, world) -> tuple[np.ndarray, np.ndarray]:
+    """(T,) UV areas and (T,) world areas of triangles uv (T, 3, 2), world (T, 3, 3)."""
+    uv = np.asarray(uv, np.float64).reshape(-1, 3, 2)
+    world = np.asarray(world, np.float64).reshape(-1, 3, 3)
+    u1, u2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+    uv_area = 0.5 * np.abs(u1[:, 0] * u2[:, 1] - u1[:, 1] * u2[:, 0])
+    w_area = 0.5 * np.linalg.norm(np.cross(world[:, 1] - world[:, 0], world[:, 2] - world[:, 0]), axis=1)
+    return uv_area, w_area
+
+
+def lightmap_problem(uv, world, width: int, height: int) -> str | None:
+    """Why a UV map (T, 3, 2) of triangles world (T, 3, 3) is unfit for a lightmap of width x height
+    texels, None when it is fit: UVs not finite or outside the unit square, faces with no area in
+    UV space (more than COLLAPSED_SHARE of the world area), or texel centres inside two or more
+    triangles (more than OVERLAP_SHARE of those covered: overlapping or mirrored islands)."""
+    _check_size(width, height)
+    uv = np.asarray(uv, np.float64).reshape(-1, 3, 2)
+    if len(uv) == 0:
+        return "it has no faces"
+    if not np.all(np.isfinite(uv)):
+        return "its UVs are not finite numbers"
+    if uv.min() < 0.0 or uv.max() > 1.0:
+        return f"its UVs reach outside the unit square ({uv.min():.3g} to {uv.max():.3g})"
+    uv_area, w_area = _areas(uv, world)
+    collapsed = float(w_area[uv_area <= 1e-12 * max(float(uv_area.max()), 1e-300)].sum())
+    if collapsed > COLLAPSED_SHARE * float(w_area.sum()):
+        share = 100 * collapsed / float(w_area.sum())
+        return f"faces holding {share:.1f} % of its area have no area in UV space"
+    counts = np.zeros(width * height, np.int64)
+    for _owner, ix, iy, w in _candidates(uv, width, height):
+        inside = np.all(w > _EDGE_TOL, axis=1)  # strictly inside: a shared edge counts once
+        np.add.at(counts, (iy * width + ix)[inside], 1)
+    covered = int(np.count_nonzero(counts))
+    twice = int(np.count_nonzero(counts > 1))
+    if covered and twice > OVERLAP_SHARE * covered:
+        return f"its UV islands overlap ({100 * twice / covered:.1f} % of its texels are covered twice)"
+    return None
+
+
+def density_size(uv, world, density: float, multiple: int = 4) -> int:
+    """Texels per side of a square image giving `density` texels per unit length on the surface
+    through UV map uv (T, 3, 2) of triangles world (T, 3, 3): density x sqrt(world area / UV area),
+    rounded up to a multiple of `multiple`. OvradError when the map has no area."""
+    if not density > 0:
+        raise OvradError(f"the texel density must be positive, got {density}")
+    uv_area, w_area = _areas(uv, world)
+    a, w = float(uv_area.sum()), float(w_area.sum())
+    if not (a > 0 and w > 0 and np.isfinite(a) and np.isfinite(w)):
+        raise OvradError("the UV map or the surface has no area")
+    texels = density * np.sqrt(w / a)
+    return int(multiple * max(1, int(np.ceil(texels / multiple - 1e-9))))

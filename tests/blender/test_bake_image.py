@@ -215,7 +215,7 @@ def state(tmp_path):
 @pytest.mark.parametrize(
     "select, kw, message",
     [
-        ("BackWall", {}, "'BackWall' has no UV map"),
+        ("BackWall", {"uv_map": "UVMap"}, "'BackWall' has no UV map"),
         ("Floor", {"uv_map": "Lightmap"}, "no UV map named 'Lightmap' (it has: UVMap)"),
         ("Floor", {"filepath": "{tmp}/afile/sub/{object}.exr"}, "cannot write"),
         ("Floor", {"filepath": "/proc/ovrad-test/{object}.exr"}, "cannot write"),

@@ -180,11 +180,25 @@ def test_image_target_writes_exr_next_to_the_output(ovrad, run_blender, tmp_path
     assert proc.returncode == 0, proc.stderr
     r = json.loads(report.read_text())
     exr = tmp_path / "img" / "ovrad" / "Floor.exr"
-    assert r["images"] == [str(exr)] and exr.stat().st_size > 1000
-    assert r["not_baked"] == [m for m in MESHES if m != "Floor"]
-    assert "'Ceiling' has no UV map: not baked" in proc.stdout
+    entry = dict(object="Floor", path=str(exr), uv_map="UVMap", size=32, format="OPEN_EXR", exposure=None)
+    assert r["images"] == [entry] and exr.stat().st_size > 1000
+    assert [n["object"] for n in r["not_baked"]] == [m for m in MESHES if m != "Floor"]
+    assert "'Ceiling' not baked to an image: 'Ceiling' has no UV map" in proc.stdout
     _, images = inspect(run_blender, out)
     assert images == ["Floor_ovrad"]
+
+
+def test_image_target_with_defaults_bakes_every_receiver_through_made_uv_maps(ovrad, run_blender, tmp_path):
+    out, report = tmp_path / "o.blend", tmp_path / "r.json"
+    proc = batch(run_blender, CORNELL, *SMALL, "--target", "image", "--texel-density", "60",
+                 "--format", "png16", "--output", out, "--report", report)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    r = json.loads(report.read_text())
+    assert sorted(e["object"] for e in r["images"]) == sorted(MESHES) and r["not_baked"] == []
+    for e in r["images"]:
+        assert e["uv_map"] == "ovrad_lightmap" and e["format"] == "PNG" and isinstance(e["exposure"], int)
+        assert e["path"] == str(tmp_path / "ovrad" / f"{e['object']}.png") and Path(e["path"]).is_file()
+        assert e["size"] % 4 == 0 and 4 <= e["size"] <= 4096
 
 
 def test_in_place_overwrites_only_when_asked(ovrad, run_blender, tmp_path):
@@ -220,7 +234,10 @@ def test_in_place_overwrites_only_when_asked(ovrad, run_blender, tmp_path):
         ([], "nothing would be saved: give --output"),
         (["--output", "{tmp}/o.txt"], "--output must be a .blend file"),
         (["--output", "{tmp}/afile/o.blend"], "cannot write the output"),
-        (["--output", "{tmp}/o.blend", "--target", "image"], "no receiver has a UV map"),
+        (["--output", "{tmp}/o.blend", "--target", "image", "--uv", "Nope"], "'Floor' has no UV map"),
+        (["--output", "{tmp}/o.blend", "--texel-density", "0"], "--texel-density must be positive"),
+        (["--output", "{tmp}/o.blend", "--max-size", "2"], "--max-size must be between 4 and 16384"),
+        (["--output", "{tmp}/o.blend", "--format", "jpg"], "argument --format: invalid choice: 'jpg'"),
     ],
 )
 def test_bad_input_gives_one_clear_line(ovrad, run_blender, tmp_path, args, message):
