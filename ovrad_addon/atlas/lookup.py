@@ -3,8 +3,9 @@
 alpha at a point needs every patch covering it. A patch can only cover points of its own sheet,
 near its plane and within its bounding ball, so each patch is registered in the cells of its
 sheet's grid that meet both its ball and the slab |n . (x - c)| <= thickness around its plane.
-A point then looks up its sheet's cell (one binary search in the sorted keys) and gets a short
-list of same-sheet candidates. Cells are half a typical bounding radius wide (per sheet, so a
+A point then looks up its sheet's cell (one read of a table from cell to key where the grids
+hold at most DIRECT_CELLS cells in all, else one binary search in the sorted keys) and gets a
+short list of same-sheet candidates. Cells are half a typical bounding radius wide (per sheet, so a
 finely patched object next to a coarse one gets its own cell size): a point meets about three
 candidates where a nearest-centres query meets eight, and only same-sheet ones.
 """
@@ -21,11 +22,16 @@ CELLS_PER_RADIUS = 2.0
 
 _MAX_ENTRIES = 1 << 22  # cell-patch tests per build step, bounding temporary memory
 
+# Grids of at most this many cells in all (every sheet's box) also get a table from cell to key
+# position (4 bytes a cell): a lookup is then one gather instead of a binary search over the keys
+DIRECT_CELLS = 1 << 22
+
 
 @dataclass(frozen=True)
 class PatchGrid:
     """origin (S, 3), cell (S,), dims (S, 3) and key offset (S,) per sheet; sorted unique cell keys
-    (K,), start (K + 1,) into patches: the patches registered in each cell."""
+    (K,), start (K + 1,) into patches: the patches registered in each cell (ascending). direct:
+    each cell's position in keys (-1: no patch), for grids of at most DIRECT_CELLS cells; else None."""
 
     origin: np.ndarray
     cell: np.ndarray
@@ -34,6 +40,7 @@ class PatchGrid:
     keys: np.ndarray
     start: np.ndarray
     patches: np.ndarray
+    direct: np.ndarray | None = None
 
     @classmethod
     def build(cls, atlas, cells_per_radius: float = CELLS_PER_RADIUS) -> PatchGrid:
@@ -105,7 +112,12 @@ class PatchGrid:
         key, owner = key[order], owner[order]
         uniq, first = np.unique(key, return_index=True)
         start = np.concatenate([first, [len(key)]]).astype(np.int64)
-        return cls(origin, cell, dims, offset, uniq, start, owner)
+        total = int(size.sum()) if S else 0
+        direct = None
+        if total <= DIRECT_CELLS:
+            direct = np.full(total, -1, np.int32)
+            direct[uniq] = np.arange(len(uniq), dtype=np.int32)
+        return cls(origin, cell, dims, offset, uniq, start, owner, direct)
 
     def cells(self, points: np.ndarray, sheets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Integer cell (m, 3) of each point in its sheet's grid (0 where it is not in it), and
@@ -120,15 +132,21 @@ class PatchGrid:
         sheets = np.asarray(sheets, np.int64)
         ok = (sheets >= 0) & (sheets < len(self.cell))
         s = np.where(ok, sheets, 0)
-        ijk, inside = self.cells(points, s)
-        ok &= inside
+        pts = np.asarray(points, np.float64).reshape(-1, 3)
+        ijk = np.floor((pts - np.take(self.origin, s, axis=0)) / np.take(self.cell, s)[:, None])
         d = np.take(self.dims, s, axis=0)
+        ok &= np.all((ijk >= 0) & (ijk < d), axis=1)
+        ijk = np.where(ok[:, None], ijk, 0).astype(np.int64)  # where not ok: its sheet's first cell
         key = np.take(self.offset, s) + ijk[:, 0] + d[:, 0] * (ijk[:, 1] + d[:, 1] * ijk[:, 2])
-        pos = np.minimum(np.searchsorted(self.keys, key), max(len(self.keys) - 1, 0))
-        if len(self.keys):
-            ok &= self.keys[pos] == key
+        if self.direct is not None:
+            pos = np.take(self.direct, key)
+            ok &= pos >= 0
         else:
-            ok[:] = False
+            pos = np.minimum(np.searchsorted(self.keys, key), max(len(self.keys) - 1, 0))
+            if len(self.keys):
+                ok &= self.keys[pos] == key
+            else:
+                ok[:] = False
         rows = np.flatnonzero(ok)
         first = self.start[pos[rows]]
         cnt = self.start[pos[rows] + 1] - first

@@ -11,6 +11,7 @@ from scipy.spatial import cKDTree
 from .. import names
 from ..errors import OvradError
 from .lookup import PatchGrid
+from .support import patch_table
 
 
 @dataclass(frozen=True, eq=False)
@@ -71,6 +72,12 @@ class Atlas:
     def bitangents(self) -> np.ndarray:
         """(n, 3) second in-plane axis, normal x tangent."""
         return np.cross(self.normals, self.tangents)
+
+    @cached_property
+    def table(self) -> np.ndarray:
+        """(n, k) float64: what a membership test reads of each patch, one row per patch
+        (atlas/support.py patch_table: centre, frame, radius, thickness, min_cos, shape)."""
+        return patch_table(self)
 
     @property
     def placement(self) -> tuple[np.ndarray, ...]:

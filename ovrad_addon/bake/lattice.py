@@ -162,11 +162,14 @@ class CornerCache:
         and, given the hits' distances t (k,), at hits closer than LATTICE_REACH local patch radii
         on a side cut in more than one cell."""
         problem = self.problem
-        n = self.patch_nodes.divisions[(np.asarray(sides) < 0).astype(np.int64), triangles]
-        out = np.empty((len(points), 8))
+        n = np.take(self.patch_nodes.divisions, self.patch_nodes.side_index(triangles, sides))
         s = np.flatnonzero(n > 0)
-        if len(s):
-            out[s] = self.patch_nodes.at(np.take(points, s, axis=0), triangles[s], sides[s])
+        if len(s) == len(n):
+            out = self.patch_nodes.at(points, triangles, sides)
+        else:
+            out = np.empty((len(points), 8))
+            if len(s):
+                out[s] = self.patch_nodes.at(np.take(points, s, axis=0), triangles[s], sides[s])
         exact = n == 0
         if t is not None:
             exact |= (n > 1) & (t < LATTICE_REACH * out[:, 6])
@@ -218,8 +221,8 @@ class LatticeValues:
         corners lies in the cell of node (i0, j0) = floor(u, v): the lower cell (i0, j0), (i0 + 1, j0),
         (i0, j0 + 1) when fu + fv <= 1, else the upper one, which shares the last two nodes and swaps
         the first for (i0 + 1, j0 + 1) (the last row of cells has no upper one)."""
-        back = (np.asarray(sides) < 0).astype(np.int64)
-        n = self.divisions[back, triangles]
+        side = self.side_index(triangles, sides)
+        n = np.take(self.divisions, side)
         vw = self.frames.coordinates(triangles, points)
         u, v = vw[:, 0] * n, vw[:, 1] * n
         i0 = np.clip(np.floor(u), 0, n - 1).astype(np.int64)
@@ -233,7 +236,7 @@ class LatticeValues:
         np.clip(weight, 0.0, 1.0, out=weight)
         weight /= np.maximum(weight.sum(axis=1, keepdims=True), 1e-300)
         # node (i, j) of a lattice of n: rows i' < i hold n + 1 - i' nodes each
-        base = self._base(back, triangles)
+        base = self._base(side)
         first = base + i0 * (2 * n + 3 - i0) // 2 + j0  # (i0, j0)
         node = np.empty((len(n), 3), np.int64)
         node[:, 1] = base + (i0 + 1) * (2 * n + 2 - i0) // 2 + j0  # (i0 + 1, j0)
@@ -242,33 +245,43 @@ class LatticeValues:
         rows = self._rows(node, triangles, sides, i0, j0, upper, n)
         return np.matmul(weight[:, None, :], rows)[:, 0]
 
-    def _base(self, back, triangles) -> np.ndarray:
-        """First slot of each side's nodes (k,), given out when a side is first asked: only the
-        sides hits land on hold slots (a wall's lattice at 100 k patches has thousands of nodes)."""
-        base = self.base[back, triangles]
+    def side_index(self, triangles, sides) -> np.ndarray:
+        """(k,) the flat index of each (back, triangle) side into divisions and base (2, T)."""
+        return np.asarray(triangles, np.int64) + self.divisions.shape[1] * (np.asarray(sides) < 0)
+
+    def _base(self, side) -> np.ndarray:
+        """First slot of each side's nodes (k,) (side: side_index()), given out when a side is first
+        asked: only the sides hits land on hold slots (a wall's lattice at 100 k patches has
+        thousands of nodes)."""
+        base = np.take(self.base, side)
         if np.any(base < 0):
             with self.lock:
-                new = np.unique(triangles[base < 0] * 2 + back[base < 0])
-                t_new, b_new = new // 2, new % 2
-                new = new[self.base[b_new, t_new] < 0]
-                t_new, b_new = new // 2, new % 2
-                n = self.divisions[b_new, t_new]
+                new = np.unique(side[base < 0])
+                new = new[np.take(self.base, new) < 0]
+                n = np.take(self.divisions, new)
                 count = (n + 1) * (n + 2) // 2
                 if self.used + count.sum() > len(self.slot):
                     grown = np.full(max(2 * len(self.slot), self.used + int(count.sum())), -1, np.int64)
                     grown[: len(self.slot)] = self.slot
                     self.slot = grown
-                self.base[b_new, t_new] = self.used + np.cumsum(count) - count
+                self.base.flat[new] = self.used + np.cumsum(count) - count
                 self.used += int(count.sum())
-            base = self.base[back, triangles]
+            base = np.take(self.base, side)
         return base
 
     def _rows(self, node, triangles, sides, i0, j0, upper, n) -> np.ndarray:
-        slot = self.slot[node]
+        slot = np.take(self.slot, node)
         need = slot < 0
         if np.any(need):
-            new, first = np.unique(node[need], return_index=True)
+            # each node once, asked by any of its hits: they all give it the same (i, j), so an
+            # unstable sort serves (np.unique's return_index sorts stably, at twice the cost)
+            asked = node[need]
+            order = np.argsort(asked)
+            asked = asked[order]
+            head = np.flatnonzero(np.r_[True, asked[1:] != asked[:-1]])
+            new = asked[head]
             k, c = np.nonzero(need)
+            first = order[head]
             k, c = k[first], c[first]
             # the nodes' (i, j), in at()'s column order
             ni = i0[k] + np.where(c == 0, upper[k], c == 1)
@@ -290,7 +303,7 @@ class LatticeValues:
                 rows[count : count + len(new)] = vals
                 self.count = count + len(new)
                 self.slot[new] = count + np.arange(len(new))  # after the rows
-            slot = self.slot[node]
+            slot = np.take(self.slot, node)
         return np.take(self.rows, slot, axis=0).astype(np.float64, copy=False)
 
 

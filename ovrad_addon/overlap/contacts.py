@@ -239,16 +239,28 @@ def _parts(atlas, index, ids, lift, pieces: int, least: float):
 
 
 def seen_members(
-    atlas, index, found: Contacts, rows: np.ndarray, cols: np.ndarray, points: np.ndarray, member: np.ndarray
+    atlas,
+    index,
+    found: Contacts,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    points: np.ndarray,
+    member: np.ndarray,
+    per_row: bool = False,
 ):
     """Membership of (row point, col patch) pairs with the hidden pairs of cut patches removed (found:
     the atlas's contacts); a point that would be left in no patch keeps its plain membership. points
-    (m, 3) per pair."""
-    check = np.flatnonzero(member)
+    (m, 3) per pair, or per_row: one per row point (rows index them)."""
+    # only cut or covered patches hide anything (visible() is true for the others)
+    check = np.flatnonzero(member & np.take(found.cut | found.covered, cols))
     if len(check) == 0:
         return member
+    at = np.take(points, np.take(rows, check) if per_row else check, axis=0)
+    hidden = check[~visible(found, atlas, index, np.take(cols, check), at)]
+    if len(hidden) == 0:
+        return member
     seen = member.copy()
-    seen[check] = visible(found, atlas, index, cols[check], np.take(points, check, axis=0))
+    seen[hidden] = False
     m = int(rows.max()) + 1
     lost = (np.bincount(rows[member], minlength=m) > 0) & ~(np.bincount(rows[seen], minlength=m) > 0)
     return np.where(lost[rows], member, seen)

@@ -9,26 +9,59 @@ import numpy as np
 from scipy.sparse import csr_matrix
 
 from ..atlas.balls import BallRule, ball_rule
-from ..atlas.support import alpha_from_pairs, pair_beta
+from ..atlas.support import alpha_values, pair_beta
 from .contacts import seen_members
 from .quadrature import patch_quadrature
 from .rule import Quadrature
 from .sight import Contacts
 
+# Hits whose candidate pairs alpha_at tests at once (about four pairs a hit): every temporary then
+# stays within a few hundred kB, in cache and off fresh pages (a 131 k-ray chunk's pairs at once
+# cost twice as much per pair). The contact test of the members is one batch of rays for all.
+HIT_BLOCK = 4096
+
 
 def alpha_at(atlas, index, contacts: Contacts, points: np.ndarray, triangle: np.ndarray, side) -> csr_matrix:
     """alpha_i at surface points (m x n sparse): points (m, 3) on `triangle` (m,), seen from side (m,) +-1;
     contacts: the atlas's (overlap.contacts.contacts(), Problem.contacts)."""
+    rows, cols, a = alpha_pairs(atlas, index, contacts, points, triangle, side)
+    m = len(np.asarray(triangle).reshape(-1))
+    indptr = np.zeros(m + 1, np.int64)
+    np.cumsum(np.bincount(rows, minlength=m), out=indptr[1:])
+    return csr_matrix((a, cols, indptr), shape=(m, len(atlas)))
+
+
+def alpha_pairs(
+    atlas, index, contacts: Contacts, points: np.ndarray, triangle: np.ndarray, side
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The nonzero entries of alpha_at as (rows, cols, alpha) (k,) each, by row and, within a row,
+    by patch: the order of alpha_at's CSR, for callers that sum entries themselves."""
     pts = np.asarray(points, np.float64).reshape(-1, 3)
-    tri = np.asarray(triangle, np.int64)
+    tri = np.asarray(triangle, np.int64).reshape(-1)
     side = np.broadcast_to(np.asarray(side), tri.shape)
+    m = len(tri)
+    parts = [_members(atlas, index, pts, tri, side, s, min(m, s + HIT_BLOCK)) for s in range(0, m, HIT_BLOCK)]
+    if not parts:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+    rows, cols, b = parts[0] if len(parts) == 1 else (np.concatenate(x) for x in zip(*parts, strict=True))
+    seen = seen_members(atlas, index, contacts, rows, cols, pts, np.ones(len(rows), bool), per_row=True)
+    if not seen.all():
+        keep = np.flatnonzero(seen)
+        rows, cols, b = np.take(rows, keep), np.take(cols, keep), np.take(b, keep)
+    return rows, cols, alpha_values(rows, b, m)
+
+
+def _members(atlas, index, pts, tri, side, lo: int, hi: int):
+    """(rows, patches, beta) of the member pairs of points lo:hi (rows index all the points), before
+    the contact test."""
+    tri, side = tri[lo:hi], side[lo:hi]
     sheets = index.sheet_of(tri, side)
     nrm = np.take(index.charts.normals, np.maximum(tri, 0), axis=0) * np.where(side < 0, -1.0, 1.0)[:, None]
-    rows, cols = atlas.grid.candidates(pts, sheets)
-    at = np.take(pts, rows, axis=0)
+    rows, cols = atlas.grid.candidates(pts[lo:hi], sheets)
+    at = np.take(pts[lo:hi], rows, axis=0)
     member, b = pair_beta(atlas, cols, at, np.take(nrm, rows, axis=0), None, atlas.beta)
-    member = seen_members(atlas, index, contacts, rows, cols, at, member)
-    return alpha_from_pairs(rows, cols, member, b, (len(pts), len(atlas)))
+    keep = np.flatnonzero(member)
+    return np.take(rows, keep) + lo, np.take(cols, keep), np.take(b, keep)
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ from scipy.sparse import coo_matrix, csc_matrix, csr_matrix
 
 from ..atlas.balls import BallRule
 from ..geometry import start_of, tangent_frame
-from ..overlap.queries import alpha_at, ray_hits, support_points
+from ..overlap.queries import alpha_pairs, ray_hits, support_points
 from ..overlap.sight import Contacts
 from ..parallel import WORKERS, threaded
 from .clusters import Clusters, pooled_fraction
@@ -277,9 +277,9 @@ def gather_transport(
             near = np.flatnonzero(near)
             points, tri, side = np.take(points, near, axis=0), tri[near], side[near]
             owner, ray_w = owner[near], ray_w[near]
-        a = alpha_at(atlas, index, contacts, points, tri, side).tocoo()
+        row, col, a = alpha_pairs(atlas, index, contacts, points, tri, side)
         # summed per (h, k) within the chunk: memory follows G, not rays
-        part = _summed(a.data * ray_w[a.row], owner[a.row], a.col, (n, n))
+        part = _summed(a * np.take(ray_w, row), np.take(owner, row), col, (n, n))
         out = np.ones(len(dirs), bool)
         out[hit] = False
         escaped = np.bincount(np.repeat(pts.owner[sl], rays_per_point)[out], minlength=n)
