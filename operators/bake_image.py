@@ -4,8 +4,9 @@ OpenEXR or 16-bit PNG (png16.py).
 The solution is solution.load_solution(): B = pi x the POINT attribute ovrad_radiosity that Solve
 wrote on the atlas objects (float32), with the Solve operator's cached problem when the scene still
 matches it, else the patches located again on the surfaces (cheap: no form factors). Values are
-reconstructed at texel centres on the surface with the engine's radiance_at / irradiance_at,
-dilated by `margin` texels, then written to the file first and only then to the image datablock
+reconstructed at texel centres on the surface with the engine's radiance_at / irradiance_at (and
+at the texel centres just outside a UV island, at the island's nearest point: see REACH), dilated
+by `margin` texels, then written to the file first and only then to the image datablock
 "<object>_ovrad", so a failure changes nothing.
 
 Each mesh bakes through the UV map named, else its active render UV map when that is fit for a
@@ -22,6 +23,7 @@ import time
 import bpy
 import numpy as np
 from bpy.props import EnumProperty, FloatProperty, IntProperty, StringProperty
+from scipy.spatial import cKDTree
 
 from ..ovrad_addon import (
     BakeRequest,
@@ -36,7 +38,7 @@ from ..ovrad_addon import (
     radiance_at,
 )
 from ..ovrad_addon import texels as bake
-from . import attributes, lightmap_uv, png16, polls, properties, scene_model
+from . import attributes, bake_vertex, lightmap_uv, png16, polls, properties, scene_model
 from .solution import load_solution
 
 IMAGE_MARK = "ovrad_bake"  # custom property on images this operator made (only those are replaced)
@@ -48,6 +50,14 @@ _CHUNK = 1 << 17  # texels reconstructed at once
 # Texel points are moved this fraction of the way to their triangle's centroid, off the exact edge
 # (a texel centre on a UV seam lies on a chart's border, where patch membership is decided).
 INSET = 1e-6
+# The points of texel centres outside an island (REACH), on its edge, are moved NUDGE patch radii
+# (at most half way) towards their triangle's centroid, as the vertex bake moves corners: a point
+# on an island's edge lies on a chart's border, on the rim of the patches placed along it.
+NUDGE = bake_vertex.NUDGE
+# Texel centres outside every UV triangle but within this many texels of one are baked at the
+# nearest point of the island (texels.rasterize): every centre a bilinear filter reads at a point of
+# an island (those less than one texel away in x and y) holds the light of the surface there.
+REACH = 1.5
 # The final gather (ray count x texels) runs on every step-th texel in x and y, step the smallest
 # power of two keeping it under this many rays, and is interpolated in between (the direct light
 # stays per texel). 2^23 rays: about 20 s on 2 cores; a 1024 px bake at 256 rays gathers at every
@@ -99,8 +109,6 @@ def sparse_gather(problem, radiosity, texels, width: int, light, step: int, size
     same plane within 2 steps (inverse distance); texels with none (a small island), or whose
     neighbours differ by more than SPREAD (an edge of the indirect light), gather themselves.
     size (k,): the world length of a texel's side at each texel (texel_sizes())."""
-    from scipy.spatial import cKDTree
-
     tri = texels.triangle
     sides = bake_sides(problem, tri)
     normals = bake_normals(problem, tri, sides)
@@ -141,6 +149,28 @@ def sparse_gather(problem, radiosity, texels, width: int, light, step: int, size
     if len(alone):
         out[alone] = gather(alone)
     return out
+
+
+def nudged(problem, texels) -> bake.Texels:
+    """The texels with the points of those outside their island (texels.outside) moved NUDGE x the
+    median patch radius towards their triangle's centroid, at most half way."""
+    if texels.outside is None:
+        return texels
+    out = texels.outside
+    to_centre = problem.surfaces.corners[texels.triangle[out]].mean(axis=1) - texels.points[out]
+    dist = np.linalg.norm(to_centre, axis=1, keepdims=True)
+    step = np.minimum(NUDGE * float(np.median(problem.atlas.radii)), 0.5 * dist)
+    points = texels.points.copy()
+    points[out] += to_centre * (step / np.maximum(dist, 1e-300))
+    return bake.Texels(texels.texel, texels.triangle, points, texels.weights, texels.outside)
+
+
+def subset(texels, keep) -> bake.Texels:
+    """The texels where keep (k,) bool is True."""
+    outside = None if texels.outside is None else texels.outside[keep]
+    return bake.Texels(
+        texels.texel[keep], texels.triangle[keep], texels.points[keep], texels.weights[keep], outside
+    )
 
 
 def bake_values(
@@ -433,7 +463,7 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
                     )
                     continue
                 ids = firsts[k] + np.arange(len(uv))
-                texels = bake.rasterize(uv, world, ids, size, size, inset=INSET)
+                texels = bake.rasterize(uv, world, ids, size, size, inset=INSET, reach=REACH)
                 if len(texels) == 0:
                     why = (
                         f"its UV map covers no texel centre at {size} px (unwrap it, or bake a larger image)"
@@ -441,17 +471,24 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
                     not_baked.append(dict(object=obj.name, why=why))
                     continue
                 sizes = texel_sizes(uv, world, size)[texels.triangle - firsts[k]]
-                values, step = bake_values(
-                    problem,
-                    radiosity,
-                    texels,
-                    self.quantity,
-                    solution.first_shot,
-                    solution.light,
-                    size,
-                    sizes,
-                )
-                steps.append(step)
+                texels = nudged(problem, texels)
+                # the centres in the islands, then those just outside (their gathers are not
+                # interpolated from one another)
+                outside = np.zeros(len(texels), bool) if texels.outside is None else texels.outside
+                values = np.zeros((len(texels), 3))
+                for part in (~outside, outside):
+                    if part.any():
+                        values[part], step = bake_values(
+                            problem,
+                            radiosity,
+                            subset(texels, part),
+                            self.quantity,
+                            solution.first_shot,
+                            solution.light,
+                            size,
+                            sizes[part],
+                        )
+                        steps.append(step)
                 img, mask = bake.to_image(texels, values, size, size)
                 img, mask = bake.dilate(img, mask, self.margin)
                 img[..., 3] = mask

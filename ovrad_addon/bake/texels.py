@@ -22,12 +22,14 @@ _EDGE_TOL = 1e-12  # barycentric slack: a centre on a shared edge belongs to one
 @dataclass(frozen=True)
 class Texels:
     """Texel centres on the surface: flat index (k,), triangle id (k,), world point (k, 3) and
-    barycentric weights (k, 3) of the triangle's corners; each texel appears at most once."""
+    barycentric weights (k, 3) of the triangle's corners; each texel appears at most once.
+    outside (k,) bool: the centre lies in no triangle (rasterize's reach), None when none does."""
 
     texel: np.ndarray
     triangle: np.ndarray
     points: np.ndarray
     weights: np.ndarray
+    outside: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.texel)
@@ -38,13 +40,18 @@ def _check_size(width: int, height: int) -> None:
         raise OvradError(f"image size must be between 1 and {MAX_SIZE} texels per side, got {width}x{height}")
 
 
-def rasterize(uv, world, triangle_ids, width: int, height: int, inset: float = 0.0) -> Texels:
+def rasterize(
+    uv, world, triangle_ids, width: int, height: int, inset: float = 0.0, reach: float = 0.0
+) -> Texels:
     """Texel centres inside UV triangles (T, 3, 2), with their world points on triangles (T, 3, 3).
 
     A centre counts when it lies inside or on the edge of a triangle; a centre on an edge shared by
     two triangles (or covered by overlapping UV islands) goes to the first triangle in input order.
-    Triangles with no area in UV space cover nothing. Results are sorted by texel index. `inset`
-    moves every world point that fraction of the way to its triangle's centroid (off the edges).
+    Triangles with no area in UV space cover nothing. With `reach` > 0, a centre inside no triangle
+    but within `reach` texels (UV distance in texels) of one counts too, at the nearest point of the
+    nearest such triangle: the centres a bilinear filter reads at an island's edge get the light
+    of the island's edge, not of a place off the surface. Results are sorted by texel index.
+    `inset` moves every world point that fraction of the way to its triangle's centroid.
     """
     _check_size(width, height)
     uv = np.asarray(uv, np.float64).reshape(-1, 3, 2)
@@ -52,38 +59,49 @@ def rasterize(uv, world, triangle_ids, width: int, height: int, inset: float = 0
     ids = np.asarray(triangle_ids, np.int64).reshape(-1)
     if not (len(uv) == len(world) == len(ids)):
         raise OvradError("uv, world and triangle_ids must have one row per triangle")
-    texel, tri, wts = [], [], []
-    for owner, ix, iy, w in _candidates(uv, width, height):
+    if not (np.isfinite(reach) and reach >= 0):
+        raise OvradError(f"reach must be a finite number >= 0, got {reach}")
+    texel, tri, wts, far = [], [], [], []
+    for owner, ix, iy, w in _candidates(uv, width, height, reach):
         inside = np.all(w >= -_EDGE_TOL, axis=1)
+        dist = np.zeros(len(w))
+        if reach > 0 and not inside.all():
+            out = ~inside
+            p = np.stack([ix[out] + 0.5, iy[out] + 0.5], axis=1)
+            dist[out], w[out] = _nearest(p, uv[owner[out]] * np.array([width, height], float))
+            inside |= dist <= reach
         texel.append((iy * width + ix)[inside])
         tri.append(owner[inside])
         wts.append(w[inside])
+        far.append(dist[inside])
     texel = np.concatenate(texel) if texel else np.zeros(0, np.int64)
     tri = np.concatenate(tri) if tri else np.zeros(0, np.int64)
     wts = np.concatenate(wts) if wts else np.zeros((0, 3))
-    # One triangle per texel: the first in input order (stable sort keeps it first).
-    order = np.lexsort((tri, texel))
-    texel, tri, wts = texel[order], tri[order], wts[order]
+    far = np.concatenate(far) if far else np.zeros(0)
+    # One triangle per texel: one it lies in (the first in input order: the stable sort keeps it
+    # first), else the nearest.
+    order = np.lexsort((tri, far, texel))
+    texel, tri, wts, far = texel[order], tri[order], wts[order], far[order]
     first = np.ones(len(texel), bool)
     first[1:] = texel[1:] != texel[:-1]
-    texel, tri, wts = texel[first], tri[first], np.clip(wts[first], 0.0, 1.0)
+    texel, tri, wts, far = texel[first], tri[first], np.clip(wts[first], 0.0, 1.0), far[first]
     wts /= wts.sum(axis=1, keepdims=True)
     if inset:
         wts = (1.0 - inset) * wts + inset / 3.0
     points = np.einsum("kj,kjd->kd", wts, world[tri])
-    return Texels(texel, ids[tri], points, wts)
+    return Texels(texel, ids[tri], points, wts, far > 0 if reach > 0 else None)
 
 
-def _candidates(uv, width: int, height: int):
+def _candidates(uv, width: int, height: int, grow: float = 0.0):
     """Per chunk of triangles: (owner, ix, iy, w) for every texel centre in a triangle's UV bounding
-    box: its triangle (k,), column and row (k,), barycentric weights (k, 3) (negative outside).
-    Triangles with no area in UV space, or not finite, give none."""
+    box grown by `grow` texels: its triangle (k,), column and row (k,), barycentric weights (k, 3)
+    (negative outside). Triangles with no area in UV space, or not finite, give none."""
     # Texel space: centres sit at integer + 0.5.
     px = uv * np.array([width, height], float)
     a, b, c = px[:, 0], px[:, 1], px[:, 2]
     area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
-    lo = np.floor(px.min(axis=1) - 0.5).astype(np.int64) + 1  # first centre index >= min
-    hi = np.ceil(px.max(axis=1) - 0.5).astype(np.int64) - 1  # last centre index <= max
+    lo = np.floor(px.min(axis=1) - grow - 0.5).astype(np.int64) + 1  # first centre index >= min
+    hi = np.ceil(px.max(axis=1) + grow - 0.5).astype(np.int64) - 1  # last centre index <= max
     lo = np.maximum(lo, 0)
     hi = np.minimum(hi, [width - 1, height - 1])
     hi = np.maximum(hi, lo - 1)  # an empty range stays empty
@@ -106,6 +124,26 @@ def _candidates(uv, width: int, height: int):
             p = np.stack([ix + 0.5, iy + 0.5], axis=1)
             yield owner, ix, iy, _barycentric(p, a[owner], b[owner], c[owner], area2[owner])
         start = stop
+
+
+def _nearest(p, tri) -> tuple[np.ndarray, np.ndarray]:
+    """Distance (k,) from 2D points p (k, 2) to triangles tri (k, 3, 2) they lie outside, and the
+    barycentric weights (k, 3) of each triangle's point nearest to it (on one of its edges)."""
+    best = np.full(len(p), np.inf)
+    wts = np.zeros((len(p), 3))
+    rows = np.arange(len(p))
+    for i in range(3):
+        j = (i + 1) % 3
+        a, e = tri[:, i], tri[:, j] - tri[:, i]
+        along = np.einsum("kd,kd->k", p - a, e) / np.maximum(np.einsum("kd,kd->k", e, e), 1e-300)
+        t = np.clip(along, 0.0, 1.0)
+        d = np.linalg.norm(a + t[:, None] * e - p, axis=1)
+        closer = d < best
+        best = np.where(closer, d, best)
+        w = np.zeros((len(p), 3))
+        w[rows, i], w[rows, j] = 1.0 - t, t
+        wts[closer] = w[closer]
+    return best, wts
 
 
 def _barycentric(p, a, b, c, area2) -> np.ndarray:

@@ -69,7 +69,7 @@ def test_vertex_bake_saves_attributes_report_and_picture(ovrad, run_blender, tmp
     assert set(r["seconds"]) == {"generate", "solve", "bake", "save", "picture", "total"}
     # the solve's stages: C kept by Generate for every patch, not integrated again
     assert set(r["solve_seconds"]) == {"index", "overlap", "transport"}
-    assert r["overlaps_kept"] == r["patches"] and r["solve_seconds"]["overlap"] < 0.1
+    assert r["overlaps_kept"] == r["patches"]
     # peak resident memory per stage, MiB: Blender itself is resident during each of them
     assert set(r["peak_memory_mb"]) == set(r["seconds"]) - {"total"}
     assert set(r["solve_peak_memory_mb"]) == {"index", "overlap", "transport"}
