@@ -15,7 +15,6 @@ import numpy as np
 
 from ..digest import add_array, hasher
 from ..errors import OvradError
-from .albedo import barycentric, bilinear
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,21 +62,25 @@ class Coverage:
                 partial |= self.image_of == k
         return partial
 
-    def alpha(self, corners: np.ndarray, triangles, points) -> np.ndarray:
-        """Alpha (m,) at surface points (m, 3) on triangles (m,); corners: (T, 3, 3) every triangle's."""
+    def frames(self, corners: np.ndarray) -> UVFrames:
+        """The affine maps from surface points to UVs of the triangles that have an alpha map;
+        corners: (T, 3, 3) every triangle's (Surfaces keeps them: Surfaces.opacity_at)."""
+        return UVFrames.of(corners, self.uv, self.mapped)
+
+    def alpha(self, frames: UVFrames, triangles, points) -> np.ndarray:
+        """Alpha (m,) at surface points (m, 3) on triangles (m,); frames: self.frames(corners)."""
         tri = np.asarray(triangles, np.int64)
         out = self.opacity[tri].astype(np.float64)
         if self.image_of is None or len(tri) == 0:
             return out
         which = self.image_of[tri]
-        pts = np.asarray(points, np.float64).reshape(-1, 3)
-        for k in np.unique(which[which >= 0]):
-            sel = np.flatnonzero(which == k)
-            t = tri[sel]
-            bary = barycentric(corners[t], pts[sel])
-            uv = np.einsum("mk,mkj->mj", bary, self.uv[t])
-            img = np.asarray(self.images[k], np.float64)[..., None]
-            out[sel] *= np.clip(bilinear(img, uv)[:, 0], 0.0, 1.0)
+        sel = np.flatnonzero(which >= 0)
+        if len(sel) == 0:
+            return out
+        uv = frames.uv(tri[sel], np.asarray(points, np.float64).reshape(-1, 3)[sel])
+        for k in np.unique(which[sel]):
+            part = which[sel] == k
+            out[sel[part]] *= np.clip(_bilinear(self.images[k], uv[part]), 0.0, 1.0)
         return out
 
     def key(self) -> bytes:
@@ -88,3 +91,62 @@ class Coverage:
             if a is not None:
                 add_array(h, a, dtype=False)
         return h.digest()
+
+
+@dataclass(frozen=True)
+class UVFrames:
+    """Per triangle with a map: uv(p) = uv0 + (p - origin) J, the barycentric interpolation of its
+    corners' UVs written as one affine map (J (k, 3, 2); 0 for a degenerate triangle); row (T,)
+    each triangle's index in them (-1: none)."""
+
+    row: np.ndarray
+    origin: np.ndarray
+    uv0: np.ndarray
+    J: np.ndarray
+
+    @staticmethod
+    def of(corners: np.ndarray, uv: np.ndarray | None, mapped: np.ndarray) -> UVFrames:
+        tri = np.flatnonzero(mapped)
+        row = np.full(len(mapped), -1, np.int64)
+        row[tri] = np.arange(len(tri))
+        c = corners[tri]
+        e1, e2 = c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]
+        d11 = np.einsum("ij,ij->i", e1, e1)
+        d12 = np.einsum("ij,ij->i", e1, e2)
+        d22 = np.einsum("ij,ij->i", e2, e2)
+        det = d11 * d22 - d12 * d12
+        ok = det > 1e-30 * np.maximum(d11 * d22, 1e-300)
+        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)[:, None]
+        # barycentric (v, w) of p = p . g1, p . g2 (p from the first corner)
+        g1 = (d22[:, None] * e1 - d12[:, None] * e2) * inv
+        g2 = (d11[:, None] * e2 - d12[:, None] * e1) * inv
+        t_uv = np.zeros((len(tri), 3, 2)) if uv is None else uv[tri]
+        du1, du2 = t_uv[:, 1] - t_uv[:, 0], t_uv[:, 2] - t_uv[:, 0]
+        J = g1[:, :, None] * du1[:, None, :] + g2[:, :, None] * du2[:, None, :]
+        return UVFrames(row, c[:, 0].copy(), t_uv[:, 0].copy(), J)
+
+    def uv(self, triangles: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """(m, 2) UVs of points (m, 3) on triangles (m,) that have a map."""
+        r = np.take(self.row, triangles)
+        rel = points - np.take(self.origin, r, axis=0)
+        J = np.take(self.J, r, axis=0)
+        out = np.take(self.uv0, r, axis=0)
+        for k in range(3):
+            out += rel[:, k : k + 1] * J[:, k]
+        return out
+
+
+def _bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Values (m,) of an (h, w) image at texture coordinates (m, 2), texel centres at (i + 0.5) / w,
+    wrapping around (albedo.bilinear on one channel, without converting the image)."""
+    h, w = image.shape
+    x = uv[:, 0] * w - 0.5
+    y = uv[:, 1] * h - 0.5
+    x0, y0 = np.floor(x), np.floor(y)
+    fx, fy = x - x0, y - y0
+    c0 = x0.astype(np.int64) % w
+    r0 = y0.astype(np.int64) % h
+    c1, r1 = (c0 + 1) % w, (r0 + 1) % h
+    top = image[r1, c0] * (1 - fx) + image[r1, c1] * fx
+    bottom = image[r0, c0] * (1 - fx) + image[r0, c1] * fx
+    return bottom * (1 - fy) + top * fy

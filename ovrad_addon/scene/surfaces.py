@@ -113,7 +113,12 @@ class Surfaces:
         tri = np.asarray(triangles, np.int64)
         if self.coverage is None:
             return np.ones(len(tri))
-        return self.coverage.alpha(self.corners, tri, points)
+        return self.coverage.alpha(self._alpha_frames, tri, points)
+
+    @cached_property
+    def _alpha_frames(self):
+        """The alpha maps' UV frames (Coverage.frames), made on first use."""
+        return self.coverage.frames(self.corners)
 
     @cached_property
     def extent(self) -> float:
