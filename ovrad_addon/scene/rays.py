@@ -165,8 +165,8 @@ def _mix64(z: np.ndarray) -> np.ndarray:
 
 def ray_uniform(origins: np.ndarray, directions: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """(m,) numbers uniform in [0, 1), a function of each ray's float64 origin and direction bits
-    and the triangle it met only: the same ray gives the same number in any batch, on any thread
-    and CPU."""
+    and the triangle it met only (splitmix64 over those words): the same ray gives the same number
+    in any batch and on any thread."""
     o = np.ascontiguousarray(origins, np.float64).view(np.uint64)
     d = np.ascontiguousarray(directions, np.float64).view(np.uint64)
     words = np.concatenate([o, d, np.asarray(triangles, np.int64).astype(np.uint64)[:, None]], axis=1)
