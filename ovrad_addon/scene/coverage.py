@@ -78,8 +78,12 @@ class Coverage:
         if len(sel) == 0:
             return out
         uv = frames.uv(tri[sel], np.asarray(points, np.float64).reshape(-1, 3)[sel])
-        for k in np.unique(which[sel]):
-            part = which[sel] == k
+        if len(self.images) == 1:
+            out[sel] *= np.clip(_bilinear(self.images[0], uv), 0.0, 1.0)
+            return out
+        k_sel = which[sel]
+        for k in np.flatnonzero(np.bincount(k_sel, minlength=len(self.images))):
+            part = k_sel == k
             out[sel[part]] *= np.clip(_bilinear(self.images[k], uv[part]), 0.0, 1.0)
         return out
 

@@ -158,6 +158,7 @@ def island_gap(uv):
     return best
 
 
+@pytest.mark.versions
 def test_every_receiver_gets_a_lightmap_and_the_users_uv_maps_are_unchanged(scene, tmp_path):
     before = uv_state()
     assert bake(tmp_path) == {"FINISHED"}
@@ -324,6 +325,7 @@ def read_gltf(path):
     return doc, accessor
 
 
+@pytest.mark.versions
 def test_gltf_carries_the_lightmap_uv_as_texcoord_1_and_unclamped_radiance(scene, tmp_path):
     # The back wall has a UV map of its own ('Tiles', unfit): ovrad's map comes second.
     for obj in scene.objects:
