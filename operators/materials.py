@@ -642,10 +642,6 @@ class MaterialAlpha:
     uv_map: str = ""
     image: str = ""
 
-    @property
-    def opaque(self) -> bool:
-        return self.pixels is None and self.constant >= 1.0
-
 
 def alpha_pixels(image) -> np.ndarray | None:
     """An image's alpha channel (h, w) float32, row 0 at the bottom (read at every k-th pixel above

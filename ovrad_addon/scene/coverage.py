@@ -42,10 +42,6 @@ class Coverage:
             if img.ndim != 2 or min(img.shape) < 1:
                 raise OvradError(f"alpha maps must be (h, w), got {img.shape}")
 
-    @staticmethod
-    def everywhere_opaque(n: int) -> Coverage:
-        return Coverage(np.ones(n))
-
     @property
     def mapped(self) -> np.ndarray:
         """(T,) bool: the triangles whose alpha comes from a map."""
