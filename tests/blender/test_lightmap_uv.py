@@ -325,7 +325,8 @@ def read_gltf(path):
     return doc, accessor
 
 
-@pytest.mark.versions
+# not marked `versions`: after a glTF export the bpy 4.5 module never exits (its threads wait at
+# interpreter shutdown), so this runs in the development Blender only
 def test_gltf_carries_the_lightmap_uv_as_texcoord_1_and_unclamped_radiance(scene, tmp_path):
     # The back wall has a UV map of its own ('Tiles', unfit): ovrad's map comes second.
     for obj in scene.objects:
