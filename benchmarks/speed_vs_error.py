@@ -160,8 +160,9 @@ class Scene:
         on = np.isin(self.ref["object"], [k for k, nm in enumerate(self.names) if nm not in missing])
         if not np.all(np.isfinite(values[self.every & on])):
             raise SystemExit(f"speed_vs_error: {self.name}: '{attribute}' is missing on scored vertices")
-        if missing:
-            print(f"speed_vs_error: {self.name}: {attribute} not on {', '.join(missing)}: left out")
+        unscored = [nm for nm in missing if self.every[self.ref["object"] == self.names.index(nm)].any()]
+        if unscored:
+            print(f"speed_vs_error: {self.name}: {attribute} not on {', '.join(unscored)}: left out")
         ref = self.ref["radiance"]
         every, seen = self.every & on, self.seen & on
         return scenes.relative_rms(values, ref, every), scenes.relative_rms(values, ref, seen)
