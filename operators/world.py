@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..ovrad_addon import Sky
-from . import compat, materials
+from . import compat, images, materials
 
 MAX_SKY_WIDTH = 1024  # wider maps are averaged down by whole blocks of pixels (power kept)
 _SHADERS = ("ShaderNodeBackground", "ShaderNodeEmission")
@@ -116,7 +116,7 @@ def sky_pixels(image) -> np.ndarray | None:
     """Linear RGB pixels (h, w, 3) float32 of an equirectangular image, row 0 at the bottom, None
     without pixels; wider than MAX_SKY_WIDTH: averaged down by whole blocks (a small sun keeps its
     power, where picking pixels would miss it)."""
-    rgb = materials.linear_pixels(image)
+    rgb = images.linear_pixels(image)
     if rgb is None:
         return None
     h, w = rgb.shape[:2]

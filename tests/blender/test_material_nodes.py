@@ -473,7 +473,7 @@ def test_an_8_bit_srgb_texture_is_interpolated_before_it_is_decoded(ovrad, fresh
     # float32 in Cycles, where a bake sample sits in its texel: within 2e-3 (measured 9e-4)
     np.testing.assert_allclose(read, baked, atol=2e-3)
     # the other order (decode, then interpolate) misses by far more
-    linear = ovrad.operators.materials.srgb_to_linear(stored.astype(np.float32)).astype(float)
+    linear = ovrad.operators.images.srgb_to_linear(stored.astype(np.float32)).astype(float)
     x, y = uv[..., 0] * 4 - 0.5, uv[..., 1] * 4 - 0.5
     x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
     fx, fy = (x - x0)[..., None], (y - y0)[..., None]
