@@ -50,10 +50,9 @@ _CHUNK = 1 << 17  # texels reconstructed at once
 # Texel points are moved this fraction of the way to their triangle's centroid, off the exact edge
 # (a texel centre on a UV seam lies on a chart's border, where patch membership is decided).
 INSET = 1e-6
-# The points of texel centres outside an island (REACH), on its edge, are moved NUDGE patch radii
-# (at most half way) towards their triangle's centroid, as the vertex bake moves corners: a point
-# on an island's edge lies on a chart's border, on the rim of the patches placed along it.
-NUDGE = bake_vertex.NUDGE
+# The points of texel centres outside an island (REACH), on its edge, are moved towards their
+# triangle's centroid as the vertex bake moves corners (bake_vertex.nudge): a point on an island's
+# edge lies on a chart's border, on the rim of the patches placed along it.
 # Texel centres outside every UV triangle but within this many texels of one are baked at the
 # nearest point of the island (texels.rasterize): every centre a bilinear filter reads at a point of
 # an island (those less than one texel away in x and y) holds the light of the surface there.
@@ -152,16 +151,14 @@ def sparse_gather(problem, radiosity, texels, width: int, light, step: int, size
 
 
 def nudged(problem, texels) -> bake.Texels:
-    """The texels with the points of those outside their island (texels.outside) moved NUDGE x the
-    median patch radius towards their triangle's centroid, at most half way."""
+    """The texels with the points of those outside their island (texels.outside) moved towards their
+    triangle's centroid (bake_vertex.nudge)."""
     if texels.outside is None:
         return texels
     out = texels.outside
-    to_centre = problem.surfaces.corners[texels.triangle[out]].mean(axis=1) - texels.points[out]
-    dist = np.linalg.norm(to_centre, axis=1, keepdims=True)
-    step = np.minimum(NUDGE * float(np.median(problem.atlas.radii)), 0.5 * dist)
     points = texels.points.copy()
-    points[out] += to_centre * (step / np.maximum(dist, 1e-300))
+    centres = problem.surfaces.corners[texels.triangle[out]].mean(axis=1)
+    points[out] = bake_vertex.nudge(problem, texels.points[out], centres)
     return bake.Texels(texels.texel, texels.triangle, points, texels.weights, texels.outside)
 
 

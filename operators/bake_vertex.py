@@ -58,6 +58,16 @@ def own_corner_angles(mesh, matrix_world) -> np.ndarray:
     return np.bincount(data.loops.ravel(), weights=angles, minlength=len(mesh.loops))
 
 
+def nudge(problem, points: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """points (k, 3) moved NUDGE x the median patch radius towards centres (k, 3) (their triangles'
+    centroids), at most half way: a point on a chart's border lies on the rim of the patches placed
+    along it."""
+    to_centre = centres - points
+    dist = np.linalg.norm(to_centre, axis=1, keepdims=True)
+    step = np.minimum(NUDGE * float(np.median(problem.atlas.radii)), 0.5 * dist)
+    return points + to_centre * (step / np.maximum(dist, 1e-300))
+
+
 class ReceiverBake:
     """One receiver's bake points, read from bpy: corners of its evaluated loop triangles, each
     standing for a loop of the object's own mesh (the values are filled in by reconstruct()).
@@ -147,10 +157,7 @@ class ReceiverBake:
         at = self.points.reshape(-1, 3)[c]
         # A vertex on a chart's border lies exactly on the rim of the squares placed along it (and,
         # after float32 storage, just outside): step each corner a hair into its triangle.
-        to_centre = np.repeat(self.points.mean(axis=1), 3, axis=0)[c] - at
-        dist = np.linalg.norm(to_centre, axis=1, keepdims=True)
-        step = np.minimum(NUDGE * float(np.median(problem.atlas.radii)), 0.5 * dist)
-        pts = at + to_centre * (step / np.maximum(dist, 1e-300))
+        pts = nudge(problem, at, np.repeat(self.points.mean(axis=1), 3, axis=0)[c])
         # The final gather starts from the corners themselves (it steps into the triangle on its
         # own), so the corners of one vertex on one face (normal and side) share one gather. Corners
         # go by vertex, so a vertex's corners fall into one chunk.
