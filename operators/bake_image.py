@@ -4,8 +4,8 @@ OpenEXR or 16-bit PNG (png16.py).
 The solution is solution.load_solution(): B = pi x the POINT attribute ovrad_radiosity that Solve
 wrote on the atlas objects (float32), with the Solve operator's cached problem when the scene still
 matches it, else the patches located again on the surfaces (cheap: no form factors). Values are
-reconstructed at texel centres on the surface with the engine's radiance_at / irradiance_at (and
-at the texel centres just outside a UV island, at the island's nearest point: see REACH), dilated
+reconstructed at texel centres on the surface by the engine (bake.lightmap.texel_values; texel
+centres just outside a UV island bake at the island's nearest point: lightmap.REACH), dilated
 by `margin` texels, then written to the file first and only then to the image datablock
 "<object>_ovrad", so a failure changes nothing.
 
@@ -23,22 +23,10 @@ import time
 import bpy
 import numpy as np
 from bpy.props import EnumProperty, FloatProperty, IntProperty, StringProperty
-from scipy.spatial import cKDTree
 
-from ..ovrad_addon import (
-    BakeRequest,
-    Gather,
-    OvradError,
-    bake_normals,
-    bake_sides,
-    gather_unique,
-    irradiance_at,
-    names,
-    own_emission,
-    radiance_at,
-)
+from ..ovrad_addon import OvradError, lightmap, names
 from ..ovrad_addon import texels as bake
-from . import attributes, bake_vertex, lightmap_uv, png16, polls, properties, scene_model
+from . import attributes, lightmap_uv, png16, polls, properties, scene_model
 from .solution import load_solution
 
 IMAGE_MARK = "ovrad_bake"  # custom property on images this operator made (only those are replaced)
@@ -46,23 +34,6 @@ DEFAULT_PATH = "//ovrad/{object}.exr"
 EXTENSIONS = {"OPEN_EXR": ".exr", "PNG": ".png"}  # the file format of an image bake, by its extension
 FORMAT_NAMES = {"OPEN_EXR": "OpenEXR", "PNG": "16-bit PNG"}
 _LISTENERS: list = []
-_CHUNK = 1 << 17  # texels reconstructed at once
-# Texel points are moved this fraction of the way to their triangle's centroid, off the exact edge
-# (a texel centre on a UV seam lies on a chart's border, where patch membership is decided).
-INSET = 1e-6
-# The points of texel centres outside an island (REACH), on its edge, are moved towards their
-# triangle's centroid as the vertex bake moves corners (bake_vertex.nudge): a point on an island's
-# edge lies on a chart's border, on the rim of the patches placed along it.
-# Texel centres outside every UV triangle but within this many texels of one are baked at the
-# nearest point of the island (texels.rasterize): every centre a bilinear filter reads at a point of
-# an island (those less than one texel away in x and y) holds the light of the surface there.
-REACH = 1.5
-# The final gather (ray count x texels) runs on every step-th texel in x and y, step the smallest
-# power of two keeping it under this many rays, and is interpolated in between (the direct light
-# stays per texel). 2^23 rays: about 20 s on 2 cores; a 1024 px bake at 256 rays gathers at every
-# 8th texel when its islands fill the image, every texel on a small bake.
-GATHER_RAY_BUDGET = 1 << 23
-SPREAD = 1.25  # neighbours' gathered light this far apart: the texel between them gathers itself
 # A UV map's fitness for a lightmap is checked at the image's size, at most this many texels per side.
 FIT_CHECK_SIZE = 2048
 
@@ -81,126 +52,6 @@ def uv_triangles(item: scene_model.MeshItem, uv_map: str) -> tuple[np.ndarray, n
     evaluated mesh); OvradError when it has no such UV map."""
     data = item.data()
     return data.bake_uvs(uv_map, item.name), data.corners
-
-
-def gather_step(count: int, rays: int, budget: int | None = None) -> int:
-    """The texel step of the final gather: the smallest power of two with (count / step^2) x rays
-    gather rays at most the budget (default GATHER_RAY_BUDGET)."""
-    budget = GATHER_RAY_BUDGET if budget is None else budget
-    step = 1
-    while count * rays > budget * step * step:
-        step *= 2
-    return step
-
-
-def texel_sizes(uv, world, size: int) -> np.ndarray:
-    """(T,) world length of a texel's side on each triangle: sqrt(world area / area in texels)."""
-    e1, e2 = world[:, 1] - world[:, 0], world[:, 2] - world[:, 0]
-    area = 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
-    u1, u2 = (uv[:, 1] - uv[:, 0]) * size, (uv[:, 2] - uv[:, 0]) * size
-    texels = 0.5 * np.abs(u1[:, 0] * u2[:, 1] - u1[:, 1] * u2[:, 0])
-    return np.sqrt(area / np.maximum(texels, 1e-300))
-
-
-def sparse_gather(problem, radiosity, texels, width: int, light, step: int, size) -> np.ndarray:
-    """(k, 3) gathered indirect irradiance at the texels: gathered at the texels whose x and y are
-    multiples of step, interpolated to the others from the (up to) 4 nearest gathered ones on the
-    same plane within 2 steps (inverse distance); texels with none (a small island), or whose
-    neighbours differ by more than SPREAD (an edge of the indirect light), gather themselves.
-    size (k,): the world length of a texel's side at each texel (texel_sizes())."""
-    tri = texels.triangle
-    sides = bake_sides(problem, tri)
-    normals = bake_normals(problem, tri, sides)
-    own = own_emission(problem, light.emitters, light.emission_scale)
-
-    def gather(k):
-        return gather_unique(
-            problem, Gather(radiosity, own, light.gather_rays), texels.points[k], normals[k], tri[k]
-        )
-
-    x, y = texels.texel % width, texels.texel // width
-    coarse = np.flatnonzero((x % step == 0) & (y % step == 0))
-    if len(coarse) == 0:
-        return gather(np.arange(len(texels)))
-    out = np.zeros((len(texels), 3))
-    out[coarse] = gather(coarse)
-    pts = texels.points
-    dist, nb = cKDTree(pts[coarse]).query(pts, k=min(4, len(coarse)))
-    dist, nb = dist.reshape(len(pts), -1), nb.reshape(len(pts), -1)
-    ok = np.isfinite(dist) & (dist <= 2.0 * step * size[:, None])
-    g = coarse[np.minimum(nb, len(coarse) - 1)]
-    same = np.einsum("ijk,ik->ij", normals[g], normals) > 0.999
-    plane = np.abs(np.einsum("ijk,ik->ij", pts[g] - pts[:, None], normals)) <= 1e-5 * problem.surfaces.extent
-    ok &= same & plane
-    w = np.where(ok, 1.0 / np.maximum(dist, 1e-12 * problem.surfaces.extent), 0.0)
-    # Where the neighbours disagree by more than SPREAD (a contact shadow's edge, the floor under
-    # a block), interpolating would blur light across the edge: those texels gather themselves.
-    level = out[g].sum(axis=2)
-    hi = np.where(ok, level, -np.inf).max(axis=1)
-    lo = np.where(ok, level, np.inf).min(axis=1)
-    has = (w.sum(axis=1) > 0) & (hi <= SPREAD * lo + 1e-9 * max(float(np.abs(out).max()), 1e-300))
-    rest = np.flatnonzero(has)
-    rest = rest[~np.isin(rest, coarse)]
-    wn = w[rest] / w[rest].sum(axis=1, keepdims=True)
-    out[rest] = np.einsum("ij,ijk->ik", wn, out[g[rest]])
-    alone = np.flatnonzero(~has)
-    alone = alone[~np.isin(alone, coarse)]
-    if len(alone):
-        out[alone] = gather(alone)
-    return out
-
-
-def nudged(problem, texels) -> bake.Texels:
-    """The texels with the points of those outside their island (texels.outside) moved towards their
-    triangle's centroid (bake_vertex.nudge)."""
-    if texels.outside is None:
-        return texels
-    out = texels.outside
-    points = texels.points.copy()
-    centres = problem.surfaces.corners[texels.triangle[out]].mean(axis=1)
-    points[out] = bake_vertex.nudge(problem, texels.points[out], centres)
-    return bake.Texels(texels.texel, texels.triangle, points, texels.weights, texels.outside)
-
-
-def subset(texels, keep) -> bake.Texels:
-    """The texels where keep (k,) bool is True."""
-    outside = None if texels.outside is None else texels.outside[keep]
-    return bake.Texels(
-        texels.texel[keep], texels.triangle[keep], texels.points[keep], texels.weights[keep], outside
-    )
-
-
-def bake_values(
-    problem,
-    radiosity,
-    texels,
-    quantity: str,
-    first_shot=None,
-    light=None,
-    width: int | None = None,
-    size=None,
-) -> np.ndarray:
-    """Radiance (or irradiance / pi) (k, 3) at texel points, seen from the side bake.points.bake_sides
-    picks for their triangle (as the vertex bake does); direct light computed at the texels when
-    the solve's first shot and light are given, and the final gather on a grid of every
-    gather_step()-th texel when it would cast more than GATHER_RAY_BUDGET rays (width: the image's,
-    size (k,): each texel's world size, texel_sizes()); returns the values and that step."""
-    fn = irradiance_at if quantity == "IRRADIANCE" else radiance_at
-    indirect = None
-    step = 1
-    if light is not None and first_shot is not None and light.gather_rays > 0 and width is not None:
-        step = gather_step(len(texels), light.gather_rays)
-        if step > 1:
-            indirect = sparse_gather(problem, radiosity, texels, width, light, step, size)
-    out = np.zeros((len(texels), 3))
-    for s in range(0, len(texels), _CHUNK):
-        sl = slice(s, s + _CHUNK)
-        pts, tri = texels.points[sl], texels.triangle[sl]
-        part = None if indirect is None else indirect[sl]
-        request = BakeRequest(radiosity, first_shot, light, indirect=part)
-        out[sl] = fn(problem, request, pts, tri, bake_sides(problem, tri))
-    # Smooth beta rings slightly below 0 next to contact shadows; light is never negative.
-    return np.maximum(out, 0.0), step
 
 
 def add_listener(listener) -> callable:
@@ -460,32 +311,27 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
                     )
                     continue
                 ids = firsts[k] + np.arange(len(uv))
-                texels = bake.rasterize(uv, world, ids, size, size, inset=INSET, reach=REACH)
+                texels = bake.rasterize(
+                    uv, world, ids, size, size, inset=lightmap.INSET, reach=lightmap.REACH
+                )
                 if len(texels) == 0:
                     why = (
                         f"its UV map covers no texel centre at {size} px (unwrap it, or bake a larger image)"
                     )
                     not_baked.append(dict(object=obj.name, why=why))
                     continue
-                sizes = texel_sizes(uv, world, size)[texels.triangle - firsts[k]]
-                texels = nudged(problem, texels)
-                # the centres in the islands, then those just outside (their gathers are not
-                # interpolated from one another)
-                outside = np.zeros(len(texels), bool) if texels.outside is None else texels.outside
-                values = np.zeros((len(texels), 3))
-                for part in (~outside, outside):
-                    if part.any():
-                        values[part], step = bake_values(
-                            problem,
-                            radiosity,
-                            subset(texels, part),
-                            self.quantity,
-                            solution.first_shot,
-                            solution.light,
-                            size,
-                            sizes[part],
-                        )
-                        steps.append(step)
+                sizes = lightmap.texel_sizes(uv, world, size)[texels.triangle - firsts[k]]
+                values, step = lightmap.texel_values(
+                    problem,
+                    radiosity,
+                    texels,
+                    self.quantity,
+                    solution.first_shot,
+                    solution.light,
+                    size,
+                    sizes,
+                )
+                steps.append(step)
                 img, mask = bake.to_image(texels, values, size, size)
                 img, mask = bake.dilate(img, mask, self.margin)
                 img[..., 3] = mask

@@ -22,6 +22,7 @@ from ..ovrad_addon import (
     bake_normals,
     bake_sides,
     irradiance_at,
+    nudge,
     radiance_at,
     shared_normals,
     split_corners,
@@ -31,7 +32,6 @@ from . import attributes, mesh_reader, polls, properties, solve
 from .solution import load_solution
 
 CHUNK = 1 << 18  # corners reconstructed at a time (bounds the sparse alpha matrices)
-NUDGE = 1e-3  # corners are moved this many patch radii into their triangle (see reconstruct)
 # Linked duplicates are baked once, as their mean, when every user is within this relative RMS of
 # it: below the solve's own noise (about 1-3 %), so the mean is as good as each user's own bake.
 DUPLICATE_TOLERANCE = 0.02
@@ -56,16 +56,6 @@ def own_corner_angles(mesh, matrix_world) -> np.ndarray:
     data = mesh_reader.read_mesh(mesh, matrix_world)
     angles = corner_angles(data.corners).ravel()
     return np.bincount(data.loops.ravel(), weights=angles, minlength=len(mesh.loops))
-
-
-def nudge(problem, points: np.ndarray, centres: np.ndarray) -> np.ndarray:
-    """points (k, 3) moved NUDGE x the median patch radius towards centres (k, 3) (their triangles'
-    centroids), at most half way: a point on a chart's border lies on the rim of the patches placed
-    along it."""
-    to_centre = centres - points
-    dist = np.linalg.norm(to_centre, axis=1, keepdims=True)
-    step = np.minimum(NUDGE * float(np.median(problem.atlas.radii)), 0.5 * dist)
-    return points + to_centre * (step / np.maximum(dist, 1e-300))
 
 
 class ReceiverBake:

@@ -10,9 +10,17 @@ light, atlas, overlap, radiosity, bake, generate.
 from . import memory, names
 from .atlas.index import SurfaceIndex, index_surfaces, sheet_spacing
 from .atlas.patches import Atlas
-from .bake import texels
+from .bake import lightmap, texels
 from .bake.gather import Gather, gather_unique, shared_normals
-from .bake.points import BakeRequest, bake_normals, bake_sides, irradiance_at, radiance_at, without_area
+from .bake.points import (
+    BakeRequest,
+    bake_normals,
+    bake_sides,
+    irradiance_at,
+    nudge,
+    radiance_at,
+    without_area,
+)
 from .digest import add_array, hasher
 from .errors import OvradError
 from .generate.build import build_atlas, build_atlas_and_overlaps, integrate, place_all
@@ -80,11 +88,13 @@ __all__ = [
     "irradiance_at",
     "keep",
     "lamp_area",
+    "lightmap",
     "locate",
     "make_rays",
     "surface_rays",
     "memory",
     "names",
+    "nudge",
     "object_keys",
     "overlaps",
     "own_emission",

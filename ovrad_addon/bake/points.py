@@ -24,6 +24,8 @@ from .gather import (
 )
 from .lattice import NearField, may_see_sky
 
+NUDGE = 1e-3  # bake points on a chart's border are moved this many patch radii into their triangle
+
 
 def without_area(problem: Problem, triangles) -> np.ndarray:
     """(m,) bool: triangles (m,) without area (no chart: three points on a line; see bake_normals)."""
@@ -52,6 +54,16 @@ def bake_normals(problem: Problem, triangles, sides) -> np.ndarray:
     normals = triangle_normals(problem.surfaces, tri) * np.asarray(sides)[:, None]
     normals[without_area(problem, tri)] = (0.0, 0.0, 1.0)
     return normals
+
+
+def nudge(problem: Problem, points: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """points (k, 3) moved NUDGE x the median patch radius towards centres (k, 3) (their triangles'
+    centroids), at most half way: a point on a chart's border lies on the rim of the patches placed
+    along it."""
+    to_centre = centres - points
+    dist = np.linalg.norm(to_centre, axis=1, keepdims=True)
+    step = np.minimum(NUDGE * float(np.median(problem.atlas.radii)), 0.5 * dist)
+    return points + to_centre * (step / np.maximum(dist, 1e-300))
 
 
 @dataclass(frozen=True)

@@ -158,7 +158,7 @@ def test_image_matches_the_engine_and_the_cycles_reference_on_the_floor(ovrad, s
 def test_a_sparse_final_gather_is_interpolated_close_to_the_full_one(ovrad, scene, tmp_path, monkeypatch):
     # 128^2 texels x 256 rays fit the budget: a gather at every texel. A budget 16 times smaller
     # gathers at every 4th texel in x and y and interpolates; the direct light stays per texel.
-    module = ovrad.operators.bake_image
+    module = ovrad.ovrad_addon.bake.lightmap
     assert module.gather_step(128 * 128, 256) == 1 and module.gather_step(128 * 128, 256, 1 << 18) == 4
     assert bake(tmp_path, size=128) == {"FINISHED"}
     full = pixels(bpy.data.images["Floor_ovrad"])[..., :3].astype(np.float64)
