@@ -311,8 +311,16 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
                     )
                     continue
                 ids = firsts[k] + np.arange(len(uv))
-                texels = bake.rasterize(
-                    uv, world, ids, size, size, inset=lightmap.INSET, reach=lightmap.REACH
+                texels, values, step, _ = lightmap.bake_lightmap(
+                    problem,
+                    radiosity,
+                    uv,
+                    world,
+                    ids,
+                    size,
+                    self.quantity,
+                    solution.first_shot,
+                    solution.light,
                 )
                 if len(texels) == 0:
                     why = (
@@ -320,17 +328,6 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
                     )
                     not_baked.append(dict(object=obj.name, why=why))
                     continue
-                sizes = lightmap.texel_sizes(uv, world, size)[texels.triangle - firsts[k]]
-                values, step = lightmap.texel_values(
-                    problem,
-                    radiosity,
-                    texels,
-                    self.quantity,
-                    solution.first_shot,
-                    solution.light,
-                    size,
-                    sizes,
-                )
                 steps.append(step)
                 img, mask = bake.to_image(texels, values, size, size)
                 img, mask = bake.dilate(img, mask, self.margin)

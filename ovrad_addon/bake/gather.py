@@ -105,7 +105,8 @@ class Gather:
     near field: the bake's receivers and chunks): they share one CornerCache per ray count and
     corner_alpha, whose nodes are then filled once for all of them (a floor's lattice under many
     objects) and built once. Points go in chunks of about chunk_rays rays on `workers` threads;
-    progress(fraction) is called on the calling thread after each.
+    progress(fraction) is called on the calling thread after each. seed: the pattern's scrambling
+    (hemisphere_pattern); gathers with other seeds cast other directions.
     """
 
     radiosity: np.ndarray
@@ -117,6 +118,7 @@ class Gather:
     chunk_rays: int = 1 << 17
     workers: int = WORKERS
     progress: Callable[[float], None] | None = None
+    seed: int = GATHER_SEED
 
 
 def gather_indirect(problem, gather: Gather, points, normals, triangles=None, spread=None) -> np.ndarray:
@@ -149,7 +151,7 @@ def gather_indirect(problem, gather: Gather, points, normals, triangles=None, sp
     if triangles is not None:
         pts = inside(index.surfaces, pts, triangles)
     values = np.asarray(gather.radiosity, np.float64) - np.asarray(gather.emission, np.float64)
-    local = hemisphere_pattern(rays)
+    local = hemisphere_pattern(rays, gather.seed)
     # the rays that tell the light seen low (a spread's missed part): a cosine pattern puts
     # sin^2 of its rays under an elevation; at least the lowest one
     lowest = np.argsort(local[:, 2], kind="stable")[: max(1, int(round(rays * HORIZON**2)))]

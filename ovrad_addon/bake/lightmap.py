@@ -1,16 +1,20 @@
 """Lightmap texels' values: radiance (or irradiance) at the texel centres texels.rasterize found,
 the direct light per texel and the final gather on a sparse grid of texels when a gather at every
-texel would cast more rays than a budget, interpolated in between."""
+texel would cast more rays than a budget, interpolated in between; texels on an edge of the light
+(a shadow's, a wall standing on the surface, an albedo's) hold their mean over their area."""
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..overlap.sight import blocked
 from ..radiosity.emission import own_emission
-from .gather import Gather, gather_unique
+from .gather import GATHER_SEED, Gather, gather_unique
 from .points import BakeRequest, bake_normals, bake_sides, irradiance_at, nudge, radiance_at
-from .texels import Texels
+from .texels import Texels, rasterize
 
 _CHUNK = 1 << 17  # texels reconstructed at once
 # Texel points are moved this fraction of the way to their triangle's centroid, off the exact edge
@@ -29,6 +33,14 @@ REACH = 1.5
 # 8th texel when its islands fill the image, every texel on a small bake.
 GATHER_RAY_BUDGET = 1 << 23
 SPREAD = 1.25  # neighbours' gathered light this far apart: the texel between them gathers itself
+# A texel whose value differs from an 8-neighbour's by more than EDGE_JUMP x the larger of the two
+# lies on an edge of the light: it holds the mean of SUPERSAMPLE x SUPERSAMPLE points over its
+# square (where the surface is), not its centre's value. A bilinear read where a wall stands on a
+# floor then gives about the mean of both sides whatever the texels' offset to the line, where
+# point values give anything between the lit and the hidden side's.
+EDGE_JUMP = 0.25
+SUPERSAMPLE = 2
+MIN_SUB_RAYS = 16  # gather rays per sub-point at least (a texel's sub-points cast rays // s^2 each)
 
 
 def gather_step(count: int, rays: int, budget: int | None = None) -> int:
@@ -141,11 +153,12 @@ def bake_values(
         if step > 1:
             indirect = sparse_gather(problem, radiosity, texels, width, light, step, size)
     out = np.zeros((len(texels), 3))
+    cache: dict = {}  # one lattice cache for every chunk (bake.gather.Gather.corner_cache)
     for s in range(0, len(texels), _CHUNK):
         sl = slice(s, s + _CHUNK)
         pts, tri = texels.points[sl], texels.triangle[sl]
         part = None if indirect is None else indirect[sl]
-        request = BakeRequest(radiosity, first_shot, light, indirect=part)
+        request = BakeRequest(radiosity, first_shot, light, indirect=part, corner_cache=cache)
         out[sl] = fn(problem, request, pts, tri, bake_sides(problem, tri))
     # Smooth beta rings slightly below 0 next to contact shadows; light is never negative.
     return np.maximum(out, 0.0), step
@@ -166,3 +179,141 @@ def texel_values(problem, radiosity, texels, quantity: str, first_shot, light, w
             )
             step = max(step, s)
     return values, step
+
+
+def edge_texels(
+    problem, texels, values, width: int, height: int, sizes, jump: float = EDGE_JUMP
+) -> np.ndarray:
+    """(k,) bool: texels (inside their island) on a geometric edge of the light: their summed value
+    differs from an 8-neighbour's by more than jump x the larger of the two (differences under
+    1e-6 x the largest value ignored) and the segment between their points, lifted a hundredth of
+    a texel off the surface, is blocked: a wall standing on the surface, or the surface entering a
+    solid. A shadow's or an albedo's edge, with nothing between the texels, is none: there the
+    texels keep their centre's value (what a vertex there gets). sizes (k,): texel_sizes()."""
+    k = len(texels)
+    level = np.full(width * height, np.nan)
+    level[texels.texel] = np.asarray(values, np.float64).sum(axis=1)
+    where = np.full(width * height, -1, np.int64)
+    where[texels.texel] = np.arange(k)
+    if texels.outside is not None:
+        level[texels.texel[texels.outside]] = np.nan  # centres outside the islands are no edge
+    img = np.pad(level.reshape(height, width), 1, constant_values=np.nan)
+    idx = np.pad(where.reshape(height, width), 1, constant_values=-1)
+    centre, me = img[1:-1, 1:-1], idx[1:-1, 1:-1]
+    floor = 1e-6 * max(float(np.nanmax(level, initial=0.0)), 1e-300)
+    first, second = [], []
+    with np.errstate(invalid="ignore"):
+        for dy, dx in ((0, 2), (1, 2), (2, 2), (2, 1)):  # each neighbour pair once
+            nb, other = img[dy : dy + height, dx : dx + width], idx[dy : dy + height, dx : dx + width]
+            diff = np.abs(centre - nb)
+            pair = (diff > jump * np.fmax(centre, nb)) & (diff > floor)
+            first.append(me[pair])
+            second.append(other[pair])
+    a, b = np.concatenate(first), np.concatenate(second)
+    out = np.zeros(k, bool)
+    if len(a) == 0:
+        return out
+    tri = texels.triangle[a]
+    normals = bake_normals(problem, tri, bake_sides(problem, tri))
+    lift = np.maximum(0.01 * np.asarray(sizes, np.float64)[a], 1e-6 * problem.surfaces.extent)
+    hit = blocked(problem.index, normals, lift, texels.points[a], texels.points[b])
+    out[a[hit]] = True
+    out[b[hit]] = True
+    return out
+
+
+def sub_points(uv, world, ids, texels, flagged, width: int, height: int, s: int):
+    """The sub-points of the flagged texels: the centres of an s x s grid over each texel's square
+    that lie on one of the UV triangles (rasterize at s times the size). Returns (Texels, parent
+    (m,) the index of each one's texel in texels, slot (m,) its place in the grid, 0 .. s^2 - 1)."""
+    mark = np.zeros(width * height, bool)
+    mark[texels.texel[flagged]] = True
+    # only triangles whose UV bounding box meets a flagged texel (a summed-area table of the marks)
+    table = np.zeros((height + 1, width + 1))
+    table[1:, 1:] = mark.reshape(height, width).cumsum(axis=0).cumsum(axis=1)
+    px = np.asarray(uv, np.float64) * (width, height)
+    lo = np.clip(np.floor(px.min(axis=1)).astype(np.int64), 0, (width - 1, height - 1))
+    hi = np.clip(np.floor(px.max(axis=1)).astype(np.int64), 0, (width - 1, height - 1)) + 1
+    hits = (
+        table[hi[:, 1], hi[:, 0]]
+        - table[lo[:, 1], hi[:, 0]]
+        - table[hi[:, 1], lo[:, 0]]
+        + table[lo[:, 1], lo[:, 0]]
+    )
+    near = np.flatnonzero(np.isfinite(hits) & (hits > 0))
+    sub = rasterize(uv[near], world[near], ids[near], width * s, height * s, inset=INSET)
+    col, row = sub.texel % (width * s), sub.texel // (width * s)
+    parent_texel = (row // s) * width + col // s
+    keep = mark[parent_texel]
+    sub = subset(sub, keep)
+    parent = np.searchsorted(texels.texel, parent_texel[keep])
+    slot = ((row % s) * s + col % s)[keep]
+    return sub, parent, slot
+
+
+def supersampled(problem, radiosity, sub, parent, slot, count: int, quantity: str, first_shot, light, s: int):
+    """(count, 3) the mean value over each texel's sub-points (sub_points(); NaN for a texel with
+    none). Each sub-point gets its own direct light and a final gather of gather_rays // s^2 rays
+    (at least MIN_SUB_RAYS), the sub-points of one slot with a pattern of their own, so a texel's
+    sub-points together cast about as many distinct directions as one gather."""
+    fn = irradiance_at if quantity == "IRRADIANCE" else radiance_at
+    values = np.zeros((len(sub), 3))
+    cache: dict = {}
+    for k in range(s * s):
+        at = np.flatnonzero(slot == k)
+        if len(at) == 0:
+            continue
+        lit = light
+        if light is not None and light.gather_rays > 0:
+            rays = max(MIN_SUB_RAYS, light.gather_rays // (s * s))
+            lit = replace(light, gather_rays=min(rays, light.gather_rays), gather_seed=GATHER_SEED + 1 + k)
+        for c in range(0, len(at), _CHUNK):
+            part = at[c : c + _CHUNK]
+            tri = sub.triangle[part]
+            request = BakeRequest(radiosity, first_shot, lit, corner_cache=cache)
+            values[part] = fn(problem, request, sub.points[part], tri, bake_sides(problem, tri))
+    total = np.zeros((count, 3))
+    for c in range(3):
+        total[:, c] = np.bincount(parent, weights=np.maximum(values[:, c], 0.0), minlength=count)
+    n = np.bincount(parent, minlength=count).astype(np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return total / n[:, None]
+
+
+def bake_lightmap(
+    problem,
+    radiosity,
+    uv,
+    world,
+    ids,
+    size: int,
+    quantity: str,
+    first_shot,
+    light,
+    supersample: int = SUPERSAMPLE,
+):
+    """A lightmap's texels and their values (k, 3) through UV triangles uv (T, 3, 2) on world
+    triangles (T, 3, 3) with surface triangle ids (T,), an image size x size: the centres
+    (texel_values), then the mean over SUPERSAMPLE^2 sub-points on the texels on an edge of the
+    light (edge_texels; supersample 1: none). Returns (texels, values, gather step, edge texels)."""
+    uv = np.asarray(uv, np.float64).reshape(-1, 3, 2)
+    world = np.asarray(world, np.float64).reshape(-1, 3, 3)
+    ids = np.asarray(ids, np.int64).reshape(-1)
+    texels = rasterize(uv, world, ids, size, size, inset=INSET, reach=REACH)
+    if len(texels) == 0:
+        return texels, np.zeros((0, 3)), 1, 0
+    order = np.argsort(ids, kind="stable")
+    sizes = texel_sizes(uv, world, size)[order[np.searchsorted(ids[order], texels.triangle)]]
+    values, step = texel_values(problem, radiosity, texels, quantity, first_shot, light, size, sizes)
+    if supersample <= 1:
+        return texels, values, step, 0
+    flagged = edge_texels(problem, texels, values, size, size, sizes)
+    if not flagged.any():
+        return texels, values, step, 0
+    sub, parent, slot = sub_points(uv, world, ids, texels, flagged, size, size, supersample)
+    means = supersampled(
+        problem, radiosity, sub, parent, slot, len(texels), quantity, first_shot, light, supersample
+    )
+    got = flagged & np.isfinite(means[:, 0])
+    values[got] = means[got]
+    return texels, values, step, int(got.sum())

@@ -15,6 +15,7 @@ from ..radiosity.first_shot import emitter_sample_count
 from ..radiosity.problem import Problem
 from ..scene.surfaces import Surfaces
 from .gather import (
+    GATHER_SEED,
     NEAR_LIGHT_SAMPLES,
     NEAR_PICKED_SAMPLES,
     NEAR_SKY_SAMPLES,
@@ -138,7 +139,14 @@ def _at_points(problem: Problem, request: BakeRequest, points, triangles, sides)
                 axis = gather_axis(spread)
             H = H + gather_unique(
                 problem,
-                Gather(radiosity, own, light.gather_rays, near=near, corner_cache=corner_cache),
+                Gather(
+                    radiosity,
+                    own,
+                    light.gather_rays,
+                    near=near,
+                    corner_cache=corner_cache,
+                    seed=GATHER_SEED if light.gather_seed is None else light.gather_seed,
+                ),
                 at,
                 axis,
                 tri,

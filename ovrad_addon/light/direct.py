@@ -48,6 +48,7 @@ class DirectLight:
     emitter_samples: int = 0  # the emitters' samples per point when not `samples` (0: samples)
     # area lamps: each stratum jittered per point (light.lamps.jittered_area_samples)
     area_jittered: bool = False
+    gather_seed: int | None = None  # the final gather's pattern seed (None: bake.gather.GATHER_SEED)
 
 
 def triangle_normals(surfaces: Surfaces, triangles: np.ndarray) -> np.ndarray:

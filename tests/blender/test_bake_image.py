@@ -96,6 +96,28 @@ def cross2(u, v):
     return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
 
 
+def footprint_distance(points, floor_z: float) -> np.ndarray:
+    """(m,) distance in xy from each point to the nearest outline of what stands on the floor: the
+    convex hull of each other mesh's vertices within 1 mm of the floor's height (the blocks)."""
+    from scipy.spatial import ConvexHull
+
+    out = np.full(len(points), np.inf)
+    for obj in bpy.context.scene.objects:
+        if obj.type != "MESH" or obj.name == "Floor" or "ovrad" in obj.name:
+            continue
+        m = np.array(obj.matrix_world)
+        co = np.array([v.co[:] for v in obj.data.vertices]) @ m[:3, :3].T + m[:3, 3]
+        foot = co[np.abs(co[:, 2] - floor_z) < 1e-3, :2]
+        if len(foot) < 3 or np.ptp(foot[:, 0]) > 0.9 * np.ptp(points[:, 0]):
+            continue  # a wall along the floor's border: no texel has a neighbour beyond it
+        hull = foot[ConvexHull(foot).vertices]
+        for a, b in zip(hull, np.roll(hull, -1, axis=0), strict=True):
+            d = b - a
+            t = np.clip((points[:, :2] - a) @ d / (d @ d), 0.0, 1.0)
+            out = np.minimum(out, np.linalg.norm(points[:, :2] - (a + t[:, None] * d), axis=1))
+    return out
+
+
 def floor_points(ovrad, points):
     """The engine's own radiance at floor points (x, y, 0), from the stored solution (direct light
     computed at the points, as the bake does by default)."""
@@ -144,12 +166,16 @@ def test_image_matches_the_engine_and_the_cycles_reference_on_the_floor(ovrad, s
     # (Compared at the texel centres, not through bilinear filtering at the reference's vertices:
     # the gathered light is sharp at the blocks' feet, which 128 texels cannot follow.) Measured
     # 3e-5: the same computation at points a hair apart (texels are inset into their triangles).
+    # Texels within 1.5 texels of a block's footprint are left out: those on its outline hold the
+    # mean of their square (tests/engine/test_lightmap_edges.py).
     cols, rows = np.meshgrid(np.arange(n), np.arange(n))
     uvc = np.column_stack([(cols.ravel() + 0.5) / n, (rows.ravel() + 0.5) / n])
     centres = np.column_stack([lo[:2] + uvc * (hi - lo)[:2], np.zeros(len(uvc))])
-    keep, direct = floor_points(ovrad, centres)
-    texel = img.reshape(-1, 3)[keep]
-    assert keep.mean() > 0.95 and rel(texel, direct) < 0.005, rel(texel, direct)
+    texel_size = float(np.max((hi - lo)[:2])) / n
+    away = footprint_distance(centres, lo[2]) > 1.5 * texel_size
+    keep, direct = floor_points(ovrad, centres[away])
+    texel = img.reshape(-1, 3)[away][keep]
+    assert away.mean() > 0.85 and keep.mean() > 0.95 and rel(texel, direct) < 0.005, rel(texel, direct)
     # And close to Cycles' converged bake (1000 patches over the whole box; measured 0.024 with the
     # final gather, 0.030 before it).
     assert rel(got, want) < 0.05, rel(got, want)
