@@ -19,6 +19,7 @@ from __future__ import annotations
 import os
 import tempfile
 import time
+from dataclasses import dataclass, field
 
 import bpy
 import numpy as np
@@ -26,7 +27,7 @@ from bpy.props import EnumProperty, FloatProperty, IntProperty, StringProperty
 
 from ..ovrad_addon import OvradError, lightmap, names
 from ..ovrad_addon import texels as bake
-from . import attributes, lightmap_uv, png16, polls, properties, scene_model
+from . import attributes, lightmap_atlas, lightmap_uv, png16, polls, properties, scene_model
 from .solution import load_solution
 
 IMAGE_MARK = "ovrad_bake"  # custom property on images this operator made (only those are replaced)
@@ -56,8 +57,9 @@ def uv_triangles(item: scene_model.MeshItem, uv_map: str) -> tuple[np.ndarray, n
 
 def add_listener(listener) -> callable:
     """Call listener(result) after each image bake that finished, result a dict: `images`, one
-    {object, path, uv_map, size, format, exposure} per image written (exposure: a 16-bit PNG's,
-    else None), and `not_baked`, one {object, why} per selected mesh that was not baked. Returns
+    {object, path, uv_map, size, format, exposure, image} per object baked (exposure: a 16-bit
+    PNG's, else None; image: the image datablock's name; the objects of a shared atlas share its
+    path and image), and `not_baked`, one {object, why} per selected mesh that was not baked. Returns
     the function that removes the listener."""
     _LISTENERS.append(listener)
     return lambda: _LISTENERS.remove(listener)
@@ -147,13 +149,31 @@ def write_image(
     return img
 
 
+@dataclass
+class Job:
+    """One image to bake: its objects (one, or a shared atlas's), the UV map they bake through, the
+    least size their made UV maps were packed for (0: none made; a shared atlas: its size), the
+    image's name and the {object} of its file path; read_job() fills in the size and each object's
+    UV and world triangles, bake_job() the objects baked."""
+
+    objects: list
+    uv_map: str
+    least: int
+    image_name: str
+    file_name: str
+    size: int = 0
+    triangles: list = field(default_factory=list)
+    path: str = ""
+    baked: list = field(default_factory=list)
+
+
 class OVRAD_OT_bake_image(bpy.types.Operator):
     bl_idname = "ovrad.bake_image"
     bl_label = "Bake to Image"
     bl_description = (
         "Bake the solved lighting of the selected meshes into a lightmap per mesh through its UV map "
-        "(made where it has none fit for a lightmap), saved as 32-bit linear OpenEXR or 16-bit PNG and "
-        "available as the image '<object>_ovrad'"
+        "(made where it has none fit for a lightmap), or into shared atlases, saved as 32-bit linear "
+        "OpenEXR or 16-bit PNG and available as the image '<object>_ovrad' (a shared atlas: 'ovrad_atlas')"
     )
     bl_options = {"REGISTER", "UNDO"}
 
@@ -183,6 +203,7 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
     )
     quantity: EnumProperty(name="Quantity", items=properties.BAKE_QUANTITIES, default="RADIANCE")
     file_format: EnumProperty(name="Format", items=properties.IMAGE_FORMATS, default="OPEN_EXR")
+    atlas: EnumProperty(name="Atlas", items=properties.LIGHTMAP_ATLASES, default="OBJECT")
     filepath: StringProperty(
         name="File",
         description=(
@@ -249,6 +270,119 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
         order = {o.name: i for i, o in enumerate(targets)}
         return sorted(chosen, key=lambda c: order[c[0].name])
 
+    def shared_maps(self, context, model, depsgraph, objects, not_baked) -> list:
+        """(objects, image size) per shared atlas, their UV maps made together (lightmap_atlas)."""
+        ok, densities, needs = [], [], []
+        for obj in objects:
+            try:
+                data = (model.item_of(obj) or scene_model.object_item(obj, depsgraph)).data()
+                density = lightmap_uv.density_per_unit(context.scene, obj, self.texel_density)
+                if self.size == 0:
+                    lightmap_uv.check_density(obj.name, data.corners, density, self.max_size)
+            except OvradError as e:
+                not_baked.append(dict(object=obj.name, why=str(e)))
+                continue
+            ok.append(obj)
+            densities.append(density)
+            needs.append(lightmap_uv.world_area(data.corners) * density**2)
+        if not ok:
+            return []
+        groups = [list(range(len(ok)))] if self.size else lightmap_atlas.groups(needs, self.max_size)
+        out = []
+        for group in groups:
+            objs = [ok[i] for i in group]
+            try:
+                size = lightmap_uv.make_shared(context, objs, [densities[i] for i in group], self.margin)
+                if self.size:
+                    size = self.size
+                elif size > self.max_size:
+                    raise OvradError(
+                        f"a shared atlas of {len(objs)} meshes needs {size} x {size} texels at this texel "
+                        f"density, more than Max Size ({self.max_size}): lower the texel density, or raise "
+                        "Max Size"
+                    )
+            except OvradError as e:
+                not_baked += [dict(object=o.name, why=str(e)) for o in objs]
+                continue
+            out.append((objs, size))
+        return out
+
+    def read_job(self, context, model, depsgraph, job: Job, not_baked) -> bool:
+        """Fill in the job's objects' UV and world triangles and its image size; False (each
+        object's reason in not_baked) when none of them can be baked."""
+        keep = []
+        for obj in job.objects:
+            try:
+                item = scene_model.object_item(obj, depsgraph) if job.least else model.item_of(obj)
+                item = item or scene_model.object_item(obj, depsgraph)
+                uv, world = uv_triangles(item, job.uv_map)
+            except OvradError as e:
+                not_baked.append(dict(object=obj.name, why=str(e)))
+                continue
+            keep.append(obj)
+            job.triangles.append((uv, world))
+        job.objects = keep
+        if not keep:
+            return False
+        if self.size:
+            job.size = self.size
+        elif len(keep) > 1 or job.image_name != keep[0].name + names.IMAGE_SUFFIX:
+            job.size = job.least  # a shared atlas: the size its UV maps were packed for
+        else:
+            obj, (uv, world) = keep[0], job.triangles[0]
+            density = lightmap_uv.density_per_unit(context.scene, obj, self.texel_density)
+            job.size = max(job.least, bake.density_size(uv, world, density, lightmap_uv.MULTIPLE))
+            if job.size > self.max_size:
+                not_baked.append(
+                    dict(
+                        object=obj.name,
+                        why=f"'{obj.name}' needs a {job.size} x {job.size} image at this texel density, "
+                        f"more than Max Size ({self.max_size}): lower the texel density or its Lightmap "
+                        "Scale, or raise Max Size",
+                    )
+                )
+                return False
+        return True
+
+    def bake_job(self, solution, job: Job, not_baked, steps) -> np.ndarray | None:
+        """The job's image (size, size, 4), alpha 1 on its texels and the dilated margin; None when
+        none of its objects baked (their reasons in not_baked)."""
+        problem, firsts = solution.problem, solution.first_triangle
+        order = [o.name for o in solution.receivers]
+        size = job.size
+        img, mask = np.zeros((size, size, 4)), np.zeros((size, size), bool)
+        for obj, (uv, world) in zip(job.objects, job.triangles, strict=True):
+            k = order.index(obj.name) if obj.name in order else -1
+            if k < 0 or len(uv) != int(np.sum(problem.surfaces.object_index == k)):
+                not_baked.append(dict(object=obj.name, why="it changed since the solve (press Solve again)"))
+                continue
+            ids = firsts[k] + np.arange(len(uv))
+            texels, values, step, _ = lightmap.bake_lightmap(
+                problem,
+                solution.radiosity,
+                uv,
+                world,
+                ids,
+                size,
+                self.quantity,
+                solution.first_shot,
+                solution.light,
+            )
+            if len(texels) == 0:
+                why = f"its UV map covers no texel centre at {size} px (unwrap it, or bake a larger image)"
+                not_baked.append(dict(object=obj.name, why=why))
+                continue
+            steps.append(step)
+            part, covered = bake.to_image(texels, values, size, size)
+            img[covered] = part[covered]
+            mask |= covered
+            job.baked.append(obj)
+        if not job.baked:
+            return None
+        img, mask = bake.dilate(img, mask, self.margin)
+        img[..., 3] = mask
+        return img
+
     def execute(self, context):
         attributes.keep_atlases_out_of_renders()  # atlases of older files rendered: mend them
         start = time.perf_counter()
@@ -263,90 +397,66 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
                         dict(object=o.name, why="not solved: generate an atlas and run Solve first")
                     )
             targets = [o for o in targets if o.name in solved]
-            if len(targets) > 1 and "{object}" not in self.filepath:
-                raise OvradError("several objects are selected: put {object} in the file path")
-            paths = {o.name: resolve_path(self.filepath, o.name, self.file_format) for o in targets}
+            shared = []
+            if self.atlas == "SHARED":
+                if not lightmap_uv.is_auto(self.uv_map):
+                    raise OvradError(
+                        "a shared atlas bakes through UV maps ovrad makes: set UV Map to auto, or bake "
+                        "per object"
+                    )
+                shared = [o for o in targets if not lightmap_atlas.linked(o)]
+            own = [o for o in targets if o not in shared]
             # the scene, read once for this bake: the targets' meshes here, the solution's inputs below
             depsgraph = context.evaluated_depsgraph_get()
             model = scene_model.read_model(depsgraph, context.scene)
-            chosen = self.choose_maps(context, model, depsgraph, targets, not_baked)
-            made = any(least for *_, least in chosen)
-            if made:  # the UV maps ovrad made are read from the updated meshes
+            chosen = self.choose_maps(context, model, depsgraph, own, not_baked)
+            atlases = self.shared_maps(context, model, depsgraph, shared, not_baked)
+            if any(least for *_, least in chosen) or atlases:  # made UV maps: read the updated meshes
                 depsgraph = context.evaluated_depsgraph_get()
-            jobs = []
-            for obj, uv_map, least in chosen:
-                try:
-                    item = scene_model.object_item(obj, depsgraph) if least else model.item_of(obj)
-                    item = item or scene_model.object_item(obj, depsgraph)
-                    uv, world = uv_triangles(item, uv_map)
-                    size = self.size
-                    if not size:
-                        density = lightmap_uv.density_per_unit(context.scene, obj, self.texel_density)
-                        size = max(least, bake.density_size(uv, world, density, lightmap_uv.MULTIPLE))
-                        if size > self.max_size:
-                            raise OvradError(
-                                f"'{obj.name}' needs a {size} x {size} image at this texel density, more "
-                                f"than Max Size ({self.max_size}): lower the texel density or its Lightmap "
-                                "Scale, or raise Max Size"
-                            )
-                except OvradError as e:
-                    not_baked.append(dict(object=obj.name, why=str(e)))
-                    continue
-                jobs.append((obj, uv_map, size, uv, world, paths[obj.name]))
+            jobs = [
+                Job([obj], uv_map, least, obj.name + names.IMAGE_SUFFIX, obj.name)
+                for obj, uv_map, least in chosen
+            ]
+            names_of = lightmap_atlas.atlas_names(len(atlases))
+            jobs += [
+                Job(objs, lightmap_uv.LIGHTMAP_UV, size, name, name)
+                for (objs, size), name in zip(atlases, names_of, strict=True)
+            ]
+            if len(jobs) > 1 and "{object}" not in self.filepath:
+                raise OvradError("several images are baked: put {object} in the file path")
+            jobs = [j for j in jobs if self.read_job(context, model, depsgraph, j, not_baked)]
             if not jobs:
                 raise OvradError(
                     "; ".join(n["why"] for n in not_baked) or "nothing to bake: select the meshes to bake"
                 )
-            for *_, path in jobs:
-                prepare_folder(path, created)
+            for job in jobs:
+                job.path = resolve_path(self.filepath, job.file_name, self.file_format)
+                prepare_folder(job.path, created)
             solution = load_solution(context, model)
-            problem, radiosity, firsts = solution.problem, solution.radiosity, solution.first_triangle
-            order = [o.name for o in solution.receivers]
             results, steps = [], []
-            for obj, uv_map, size, uv, world, path in jobs:
-                k = order.index(obj.name) if obj.name in order else -1
-                if k < 0 or len(uv) != int(np.sum(problem.surfaces.object_index == k)):
-                    not_baked.append(
-                        dict(object=obj.name, why="it changed since the solve (press Solve again)")
-                    )
-                    continue
-                ids = firsts[k] + np.arange(len(uv))
-                texels, values, step, _ = lightmap.bake_lightmap(
-                    problem,
-                    radiosity,
-                    uv,
-                    world,
-                    ids,
-                    size,
-                    self.quantity,
-                    solution.first_shot,
-                    solution.light,
-                )
-                if len(texels) == 0:
-                    why = (
-                        f"its UV map covers no texel centre at {size} px (unwrap it, or bake a larger image)"
-                    )
-                    not_baked.append(dict(object=obj.name, why=why))
-                    continue
-                steps.append(step)
-                img, mask = bake.to_image(texels, values, size, size)
-                img, mask = bake.dilate(img, mask, self.margin)
-                img[..., 3] = mask
-                results.append((obj, uv_map, size, img, path))
+            for job in jobs:
+                img = self.bake_job(solution, job, not_baked, steps)
+                if img is not None:
+                    results.append((job, img))
             if not results:
                 raise OvradError("; ".join(n["why"] for n in not_baked))
-            images, entries = [], []
-            for obj, uv_map, size, img, path in results:
-                stored = path
-                if self.filepath.startswith("//"):
-                    stored = bpy.path.relpath(path)
-                image = write_image(obj.name + names.IMAGE_SUFFIX, img, path, stored, self.file_format)
-                images.append(image)
+            entries = []
+            for job, img in results:
+                stored = bpy.path.relpath(job.path) if self.filepath.startswith("//") else job.path
+                image = write_image(job.image_name, img, job.path, stored, self.file_format)
                 exposure = image.get(names.PROP_EXPOSURE) if self.file_format == "PNG" else None
-                entries.append(
-                    dict(object=obj.name, path=path, uv_map=uv_map, size=size, format=self.file_format)
-                )
-                entries[-1]["exposure"] = exposure
+                for obj in job.baked:
+                    entries.append(
+                        dict(
+                            object=obj.name,
+                            path=job.path,
+                            uv_map=job.uv_map,
+                            size=job.size,
+                            format=self.file_format,
+                            exposure=exposure,
+                            image=image.name,
+                        )
+                    )
         except OvradError as e:
             _remove_created(created)
             self.report({"ERROR"}, str(e))
@@ -359,6 +469,8 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
             )
         seconds = time.perf_counter() - start
         listed = ", ".join(f"'{e['object']}' {e['size']} px" for e in entries)
+        if any(e["image"] != e["object"] + names.IMAGE_SUFFIX for e in entries):
+            listed += " (" + ", ".join(sorted({e["image"] for e in entries})) + ")"
         sparse = max(steps, default=1)
         note = f"; indirect light gathered at every {sparse} texels and interpolated" if sparse > 1 else ""
         self.report({"INFO"}, f"ovrad: baked {listed}{note} in {seconds:.2f} s")

@@ -133,56 +133,77 @@ def make(context, obj, density: float, padding: float) -> int:
     a multiple of MULTIPLE) at which it gives at least `density` texels per scene unit and its
     islands are at least `padding` texels apart. OvradError, with the mesh as it was, when a UV
     map of that name is the user's or the mesh has no room for another UV map."""
-    mesh = obj.data
-    layers = mesh.uv_layers
-    if LIGHTMAP_UV in layers and not made_by_ovrad(mesh):
-        raise OvradError(
-            f"'{obj.name}' has a UV map '{LIGHTMAP_UV}' that ovrad did not make: rename it, or name it "
-            "as the UV map to bake through"
-        )
-    if LIGHTMAP_UV not in layers and len(layers) >= MAX_UV_MAPS:
-        raise OvradError(
-            f"'{obj.name}' has {len(layers)} UV maps, Blender's most: name one of them as the UV map "
-            "to bake through"
-        )
-    active = layers.active.name if layers.active else ""
-    render = render_map(mesh)
-    layer = layers.get(LIGHTMAP_UV) or layers.new(name=LIGHTMAP_UV, do_init=False)
-    if layer is None:
-        raise OvradError(f"'{obj.name}': Blender refused a new UV map")
-    layers.active = layer
-    try:
-        size = _unwrap(context, obj, density, padding)
-    finally:
+    return make_shared(context, [obj], [density], padding)
+
+
+def make_shared(context, objects: list, densities: list, padding: float) -> int:
+    """make() for several objects at once (each its own mesh): their LIGHTMAP_UV maps are
+    unwrapped and packed together into one unit square, each object's islands at its own density
+    (texels per scene unit) relative to the others; returns the image size giving every object
+    at least its density. Every mesh is checked before any is changed."""
+    for obj in objects:
         layers = obj.data.uv_layers
-        if active:
-            layers.active = layers[active]
-        if render:
-            layers[render].active_render = True
-    mesh[names.PROP_LIGHTMAP_UV] = digest(mesh.uv_layers[LIGHTMAP_UV])
+        if LIGHTMAP_UV in layers and not made_by_ovrad(obj.data):
+            raise OvradError(
+                f"'{obj.name}' has a UV map '{LIGHTMAP_UV}' that ovrad did not make: rename it, or name "
+                "it as the UV map to bake through"
+            )
+        if LIGHTMAP_UV not in layers and len(layers) >= MAX_UV_MAPS:
+            raise OvradError(
+                f"'{obj.name}' has {len(layers)} UV maps, Blender's most: name one of them as the UV map "
+                "to bake through"
+            )
+    kept = []  # per mesh: its active and render UV map names, put back afterwards
+    try:
+        for obj in objects:
+            layers = obj.data.uv_layers
+            kept.append((obj, layers.active.name if layers.active else "", render_map(obj.data)))
+            layer = layers.get(LIGHTMAP_UV) or layers.new(name=LIGHTMAP_UV, do_init=False)
+            if layer is None:
+                raise OvradError(f"'{obj.name}': Blender refused a new UV map")
+            layers.active = layer
+        size = _unwrap(context, objects, densities, padding)
+    finally:
+        for obj, active, render in kept:
+            layers = obj.data.uv_layers
+            if active:
+                layers.active = layers[active]
+            if render:
+                layers[render].active_render = True
+    for obj in objects:
+        obj.data[names.PROP_LIGHTMAP_UV] = digest(obj.data.uv_layers[LIGHTMAP_UV])
     return size
 
 
-def _unwrap(context, obj, density: float, padding: float) -> int:
-    """Smart UV Project and Pack Islands on obj's active UV layer, in Edit Mode on obj alone."""
+def _scale_islands(objects, factors) -> None:
+    """Scale each object's active UV layer about the origin by its factor (Object Mode)."""
+    for obj, f in zip(objects, factors, strict=True):
+        if f != 1.0:
+            layer = obj.data.uv_layers.active
+            layer.data.foreach_set("uv", (uv_values(layer) * np.float32(f)).ravel())
+
+
+def _unwrap(context, objects: list, densities: list, padding: float) -> int:
+    """Smart UV Project and Pack Islands on the objects' active UV layers, in Edit Mode on them alone."""
     view_layer = context.view_layer
     selected = [o for o in view_layer.objects if o.select_get()]
     active = view_layer.objects.active
-    hidden = obj.hide_get()
-    mesh = obj.data
-    flags = _flags(mesh)
-    loops, world = _mesh_triangles(obj)
-    area = world_area(world)
+    hidden = [o.hide_get() for o in objects]
+    flags = [_flags(o.data) for o in objects]
+    tris = [_mesh_triangles(o) for o in objects]
+    top = max(densities)
+    texels = sum(world_area(w) * d * d for (_, w), d in zip(tris, densities, strict=True))
     # A first guess of the image size (islands filling 70 % of it) sets the first margin.
-    margin = min(0.2, padding / max(density * math.sqrt(area / 0.7), 1.0))
+    margin = min(0.2, padding / max(math.sqrt(texels / 0.7), 1.0))
     size = MULTIPLE
     for o in selected:
         o.select_set(False)
     try:
-        obj.hide_set(False)
-        obj.select_set(True)
-        view_layer.objects.active = obj
-        bpy.ops.object.mode_set(mode="EDIT")
+        for o in objects:
+            o.hide_set(False)
+            o.select_set(True)
+        view_layer.objects.active = objects[0]
+        bpy.ops.object.mode_set(mode="EDIT")  # every selected mesh: multi-object editing
         bpy.ops.mesh.reveal(select=False)
         bpy.ops.mesh.select_all(action="SELECT")
         bpy.ops.uv.smart_project(
@@ -192,6 +213,10 @@ def _unwrap(context, obj, density: float, padding: float) -> int:
             correct_aspect=True,
             scale_to_bounds=False,
         )
+        if len(set(densities)) > 1:  # islands of objects at a lower density drawn smaller
+            bpy.ops.object.mode_set(mode="OBJECT")
+            _scale_islands(objects, [d / top for d in densities])
+            bpy.ops.object.mode_set(mode="EDIT")
         for k in range(_PACK_PASSES):
             if k:
                 bpy.ops.object.mode_set(mode="EDIT")
@@ -200,17 +225,22 @@ def _unwrap(context, obj, density: float, padding: float) -> int:
                 rotate=True, scale=True, margin_method="FRACTION", margin=margin, shape_method="AABB"
             )
             bpy.ops.object.mode_set(mode="OBJECT")  # the mesh's UVs are read in Object Mode
-            uv = uv_values(obj.data.uv_layers.active).astype(np.float64)[loops]
-            size = bake.density_size(uv, world, density, MULTIPLE)
+            size = max(
+                bake.density_size(
+                    uv_values(o.data.uv_layers.active).astype(np.float64)[loops], world, d, MULTIPLE
+                )
+                for o, (loops, world), d in zip(objects, tris, densities, strict=True)
+            )
             if margin * size >= padding:
                 break
             margin = min(0.45, 1.02 * padding / size)
     finally:
-        if obj.mode != "OBJECT":
+        if bpy.context.mode != "OBJECT":
             bpy.ops.object.mode_set(mode="OBJECT")
-        _set_flags(obj.data, flags)
-        obj.select_set(False)
-        obj.hide_set(hidden)
+        for o, f, h in zip(objects, flags, hidden, strict=True):
+            _set_flags(o.data, f)
+            o.select_set(False)
+            o.hide_set(h)
         for o in selected:
             o.select_set(True)
         view_layer.objects.active = active

@@ -55,6 +55,15 @@ IMAGE_FORMATS = (
         "(ovrad:exposure) and the image's custom property ovrad_exposure",
     ),
 )
+LIGHTMAP_ATLASES = (
+    ("OBJECT", "Per Object", "One lightmap per mesh, through its own UV map or the one ovrad makes"),
+    (
+        "SHARED",
+        "Shared",
+        "The meshes' lightmaps packed together into as few images as Max Size allows, through UV maps "
+        "ovrad makes for them together (linked duplicates get images of their own)",
+    ),
+)
 BAKE_DOMAINS = (
     ("POINT", "Vertex", "One value per vertex: angle-weighted average of its face corners (smooth)"),
     ("CORNER", "Face Corner", "One value per face corner: keeps hard edges between faces"),
@@ -305,6 +314,7 @@ class OVRAD_PG_settings(bpy.types.PropertyGroup):
     bake_texel_density: FloatProperty(name="Texel Density", **TEXEL_DENSITY)
     bake_max_size: IntProperty(name="Max Size", **MAX_IMAGE_SIZE)
     bake_image_format: EnumProperty(name="Format", items=IMAGE_FORMATS, default="OPEN_EXR")
+    bake_atlas: EnumProperty(name="Atlas", items=LIGHTMAP_ATLASES, default="OBJECT")
     bake_image_path: StringProperty(
         name="File",
         description=(

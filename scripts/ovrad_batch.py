@@ -144,6 +144,16 @@ OPTIONS = [
     ("bake", "--max-size", dict(type=int, help="image: largest width and height from the density (4096)")),
     (
         "bake",
+        "--atlas",
+        dict(
+            choices=("object", "shared"),
+            default="object",
+            help="image: a lightmap per mesh (object), or the meshes' lightmaps packed into as few "
+            "images as --max-size allows (shared; through UV maps ovrad makes)",
+        ),
+    ),
+    (
+        "bake",
         "--size",
         dict(type=int, default=0, help="image: width and height in texels (0: from the density)"),
     ),
@@ -334,6 +344,7 @@ def apply_settings(props, args, module) -> None:
     if args.max_size is not None:
         props.bake_max_size = args.max_size
     props.bake_image_format = FORMATS[args.format]
+    props.bake_atlas = args.atlas.upper()
 
 
 def output_paths(args) -> tuple[str, str]:
@@ -393,7 +404,7 @@ def show_bake(obj, args, names, image=None) -> np.ndarray:
             data.data.foreach_get("color", values)
     else:
         src = tree.nodes.new("ShaderNodeTexImage")
-        src.image = bpy.data.images.get(obj.name + names.IMAGE_SUFFIX) if image else None
+        src.image = bpy.data.images.get(image.get("image", obj.name + names.IMAGE_SUFFIX)) if image else None
         values = np.empty(len(src.image.pixels) if src.image else 0, np.float32)
         if src.image:
             src.image.pixels.foreach_get(values)
@@ -474,7 +485,7 @@ def refine(scene, receivers, atlases, names) -> list | None:
 
 def bake(args, receivers, out: str, module) -> tuple[list[dict], list[dict]]:
     """Bake to vertex colours or images; returns (one {object, path, uv_map, size, format,
-    exposure} per image written, one {object, why} per receiver not baked to an image)."""
+    exposure, image} per object baked to an image, one {object, why} per receiver not baked to an image)."""
     if args.target == "vertex":
         operator(
             bpy.ops.ovrad.bake_vertex,
@@ -501,6 +512,7 @@ def bake(args, receivers, out: str, module) -> tuple[list[dict], list[dict]]:
             quantity=args.quantity.upper(),
             file_format=FORMATS[args.format],
             filepath=template,
+            atlas=args.atlas.upper(),
         )
     finally:
         remove()

@@ -156,13 +156,14 @@ def draw_bake(layout, props, obj=None) -> None:
         row = col.row()
         row.active = props.bake_image_size == 0
         row.prop(props, "bake_max_size")
+        col.prop(props, "bake_atlas")
         col.prop(props, "bake_image_format")
         col.prop(props, "bake_image_path")
         op = layout.operator("ovrad.bake_image", icon="IMAGE_DATA")
         op.uv_map, op.size = props.bake_uv_map, props.bake_image_size
         op.texel_density, op.max_size = props.bake_texel_density, props.bake_max_size
         op.filepath, op.quantity = props.bake_image_path, props.bake_quantity
-        op.file_format = props.bake_image_format
+        op.file_format, op.atlas = props.bake_image_format, props.bake_atlas
         if obj is not None and obj.type == "MESH" and not attributes.is_atlas(obj):
             box = layout.box()
             box.label(text=f"Object: {obj.name}", icon="OBJECT_DATA")
