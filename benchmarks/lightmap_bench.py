@@ -143,7 +143,9 @@ def run_scene(name: str, folder: Path, extra: list[str], samples: int) -> dict:
     bpy.ops.wm.open_mainfile(filepath=str(out))
     scene = bpy.context.scene
     entries = {e["object"]: e for e in rep["images"]}
-    values = scored_values(scene, ref["object_names"], entries, lambda n: bpy.data.images[n + "_ovrad"])
+    values = scored_values(
+        scene, ref["object_names"], entries, lambda n: bpy.data.images[entries[n].get("image", n + "_ovrad")]
+    )
     s = real_scenes.score(ref, values)
     secs = rep["seconds"]
     row.update(

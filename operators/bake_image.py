@@ -446,6 +446,7 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
                 image = write_image(job.image_name, img, job.path, stored, self.file_format)
                 exposure = image.get(names.PROP_EXPOSURE) if self.file_format == "PNG" else None
                 for obj in job.baked:
+                    obj[names.PROP_LIGHTMAP_IMAGE], obj[names.PROP_LIGHTMAP_UV_MAP] = image.name, job.uv_map
                     entries.append(
                         dict(
                             object=obj.name,

@@ -14,7 +14,7 @@ import json
 import bpy
 
 from ..ovrad_addon import OvradError
-from . import attributes, compat
+from . import attributes, compat, preview_images
 
 PREVIEW_PROP = "ovrad_preview"  # material: JSON record of what the preview changed; our nodes: 1
 SLOTS_PROP = "ovrad_preview_slots"  # object: indices of empty slots the preview filled
@@ -24,8 +24,10 @@ PREVIEW_MATERIAL = "ovrad preview"
 
 
 def is_active() -> bool:
-    """Whether a preview is set up in this file (materials carry our record)."""
-    return any(PREVIEW_PROP in m or MATERIAL_PROP in m for m in bpy.data.materials)
+    """Whether a preview is set up in this file (materials or, for lightmaps, objects carry our record)."""
+    return preview_images.is_active() or any(
+        PREVIEW_PROP in m or MATERIAL_PROP in m for m in bpy.data.materials
+    )
 
 
 def _nodes(tree, attribute: str):
@@ -188,21 +190,41 @@ class OVRAD_OT_preview(bpy.types.Operator):
     bl_idname = "ovrad.preview"
     bl_label = "Preview Bake"
     bl_description = (
-        "Toggle: show the baked colour attribute as emission in the receivers' materials; "
-        "press again to restore the materials exactly"
+        "Toggle: show the baked colour attribute (or the baked lightmaps) as emission on the "
+        "receivers; press again to restore the materials exactly"
     )
     bl_options = {"REGISTER", "UNDO"}
 
     attribute: bpy.props.StringProperty(
         name="Attribute", description="Baked attribute to show (default: the panel's)", maxlen=63
     )
+    source: bpy.props.EnumProperty(
+        name="Show",
+        items=(
+            ("AUTO", "Auto", "What the panel's Bake To says"),
+            ("VERTEX", "Vertex Colors", "The baked colour attribute"),
+            ("IMAGE", "Lightmaps", "Each receiver's lightmap from its last image bake, through its UV map"),
+        ),
+        default="AUTO",
+    )
 
     def execute(self, context):
         attributes.keep_atlases_out_of_renders()  # atlases of older files rendered: mend them
         if is_active():
-            for p in teardown():
+            for p in teardown() + preview_images.teardown():
                 self.report({"WARNING"}, p)
             self.report({"INFO"}, "ovrad: preview off, materials restored")
+            return {"FINISHED"}
+        source = context.scene.ovrad.bake_target if self.source == "AUTO" else self.source
+        if source == "IMAGE":
+            try:
+                count = preview_images.setup(context.scene)
+            except OvradError as e:
+                self.report({"ERROR"}, str(e))
+                return {"CANCELLED"}
+            self.report(
+                {"INFO"}, f"ovrad: previewing the lightmaps of {count} mesh(es); press again to restore"
+            )
             return {"FINISHED"}
         name = (
             self.attribute

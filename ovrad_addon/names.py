@@ -44,6 +44,8 @@ PROP_OVERLAP_QUADRATURE = "ovrad_overlap_quadrature"
 IMAGE_SUFFIX = "_ovrad"  # an image bake of object X is the image data block X + IMAGE_SUFFIX
 LIGHTMAP_UV = "ovrad_lightmap"  # the UV map an image bake makes where a mesh has none fit for a lightmap
 PROP_LIGHTMAP_UV = "ovrad_lightmap_uv"  # on that mesh: digest of the UV map ovrad made (only it is replaced)
+PROP_LIGHTMAP_IMAGE = "ovrad_lightmap_image"  # on an object: the image its last image bake wrote it to
+PROP_LIGHTMAP_UV_MAP = "ovrad_lightmap_uv_map"  # ... and the UV map that bake went through
 PROP_EXPOSURE = "ovrad_exposure"  # on a 16-bit PNG bake's image: its values are v / 65535 x 2^exposure
 
 COLLECTION = "ovrad"

@@ -164,6 +164,11 @@ def draw_bake(layout, props, obj=None) -> None:
         op.texel_density, op.max_size = props.bake_texel_density, props.bake_max_size
         op.filepath, op.quantity = props.bake_image_path, props.bake_quantity
         op.file_format, op.atlas = props.bake_image_format, props.bake_atlas
+        active = preview.is_active()
+        op = layout.operator(
+            "ovrad.preview", text="Preview (on)" if active else "Preview", icon="HIDE_OFF", depress=active
+        )
+        op.source = "IMAGE"
         if obj is not None and obj.type == "MESH" and not attributes.is_atlas(obj):
             box = layout.box()
             box.label(text=f"Object: {obj.name}", icon="OBJECT_DATA")

@@ -455,3 +455,67 @@ def test_a_linked_duplicate_is_no_part_of_a_shared_atlas(ovrad, scene):
     assert linked(block) and linked(twin)
     bpy.data.objects.remove(twin)
     assert not linked(block)
+
+
+def slots_state():
+    """Per object: its slots' (link, material shown) and its mesh's own materials."""
+    return {
+        o.name: (
+            [(s.link, s.material.name if s.material else None) for s in o.material_slots],
+            [m.name if m else None for m in o.data.materials],
+        )
+        for o in bpy.data.objects
+        if o.type == "MESH"
+    }
+
+
+@pytest.mark.versions
+def test_preview_shows_each_lightmap_through_its_uv_map_and_restores_the_slots(ovrad, scene, tmp_path):
+    preview = ovrad.operators.preview
+    floor, block = scene.objects["Floor"], scene.objects["ShortBlock"]
+    mine = bpy.data.materials.new("Mine")
+    floor.material_slots[0].link = "OBJECT"  # the user's own object-linked material stays theirs
+    floor.material_slots[0].material = mine
+    block.data.materials.clear()  # a receiver without slots
+    assert bake(tmp_path) == {"FINISHED"}
+    before = slots_state()
+    assert bpy.ops.ovrad.preview(source="IMAGE") == {"FINISHED"}
+    assert preview.is_active()
+    for name in RECEIVERS:
+        obj = scene.objects[name]
+        assert obj.material_slots and all(s.link == "OBJECT" for s in obj.material_slots)
+        tree = obj.material_slots[0].material.node_tree
+        tex = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeTexImage")
+        uv = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeUVMap")
+        assert tex.image == bpy.data.images[name + "_ovrad"]
+        assert uv.uv_map == ("UVMap" if name == "Floor" else "ovrad_lightmap")
+        # the meshes' own materials (which other objects may share) are untouched; a mesh without
+        # any gets one empty slot for the preview
+        want = before[name][1] or [None]
+        assert [m.name if m else None for m in obj.data.materials] == want
+    assert bpy.ops.ovrad.preview() == {"FINISHED"}
+    assert not preview.is_active()
+    assert slots_state() == before
+    assert floor.material_slots[0].material == mine and len(block.material_slots) == 0
+    assert not [m for m in bpy.data.materials if m.name.startswith("ovrad preview")]
+    # a shared atlas: every receiver shows the one atlas image
+    assert bake(tmp_path, atlas="SHARED") == {"FINISHED"}
+    assert bpy.ops.ovrad.preview(source="IMAGE") == {"FINISHED"}
+    shown = {
+        next(
+            n
+            for n in scene.objects[r].material_slots[0].material.node_tree.nodes
+            if n.bl_idname == "ShaderNodeTexImage"
+        ).image.name
+        for r in RECEIVERS
+    }
+    assert shown == {"ovrad_atlas"}
+    assert bpy.ops.ovrad.preview() == {"FINISHED"}
+    assert slots_state() == before
+
+
+def test_preview_of_lightmaps_before_any_image_bake_is_refused(ovrad, scene):
+    before = slots_state()
+    with pytest.raises(RuntimeError, match="bake to images first"):
+        bpy.ops.ovrad.preview(source="IMAGE")
+    assert slots_state() == before and not ovrad.operators.preview.is_active()
