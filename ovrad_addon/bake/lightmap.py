@@ -10,9 +10,12 @@ from dataclasses import replace
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..light.sky import sky_irradiance
+from ..overlap.queries import alpha_at
 from ..overlap.sight import blocked
-from ..radiosity.emission import own_emission
+from ..radiosity.emission import bake_sky, own_emission
 from .gather import GATHER_SEED, Gather, gather_unique
+from .lattice import may_see_sky
 from .points import BakeRequest, bake_normals, bake_sides, irradiance_at, nudge, radiance_at
 from .texels import Texels, rasterize
 
@@ -62,21 +65,33 @@ def texel_sizes(uv, world, size: int) -> np.ndarray:
     return np.sqrt(area / np.maximum(texels, 1e-300))
 
 
-def sparse_gather(problem, radiosity, texels, width: int, light, step: int, size) -> np.ndarray:
-    """(k, 3) gathered indirect irradiance at the texels: gathered at the texels whose x and y are
-    multiples of step, interpolated to the others from the (up to) 4 nearest gathered ones on the
-    same plane within 2 steps (inverse distance); texels with none (a small island), or whose
-    neighbours differ by more than SPREAD (an edge of the indirect light), gather themselves.
-    size (k,): the world length of a texel's side at each texel (texel_sizes())."""
+def sparse_gather(
+    problem, radiosity, texels, width: int, light, step: int, size, sky: bool = False
+) -> np.ndarray:
+    """(k, 3) gathered indirect irradiance at the texels (with sky: plus the sky's direct light):
+    gathered at the texels whose x and y are multiples of step, interpolated to the others from the
+    (up to) 4 nearest gathered ones on the same plane within 2 steps (inverse distance); texels with
+    none (a small island), or whose neighbours differ by more than SPREAD (an edge of the light),
+    gather themselves. size (k,): the world length of a texel's side at each texel (texel_sizes())."""
     tri = texels.triangle
     sides = bake_sides(problem, tri)
     normals = bake_normals(problem, tri, sides)
     own = own_emission(problem, light.emitters, light.emission_scale)
+    seen = bake_sky(problem, light, radiosity) if sky else None
 
     def gather(k):
-        return gather_unique(
+        out = gather_unique(
             problem, Gather(radiosity, own, light.gather_rays), texels.points[k], normals[k], tri[k]
         )
+        if sky:
+            pts = texels.points[k]
+            a = alpha_at(problem.atlas, problem.index, problem.contacts, pts, tri[k], sides[k])
+            at = np.arange(len(k)) if seen is None else np.flatnonzero(may_see_sky(a, seen))
+            extent = problem.surfaces.extent
+            out[at] += sky_irradiance(
+                light.sky, problem.index.rays, pts[at], normals[k][at], extent, light.sky_samples
+            )[0]
+        return out
 
     x, y = texels.texel % width, texels.texel // width
     coarse = np.flatnonzero((x % step == 0) & (y % step == 0))
@@ -151,7 +166,11 @@ def bake_values(
     if light is not None and first_shot is not None and light.gather_rays > 0 and width is not None:
         step = gather_step(len(texels), light.gather_rays)
         if step > 1:
-            indirect = sparse_gather(problem, radiosity, texels, width, light, step, size)
+            # the sky's direct light, soft as the indirect, is computed and interpolated with it
+            sky = light.sky is not None and light.sky.emits
+            indirect = sparse_gather(problem, radiosity, texels, width, light, step, size, sky)
+            if sky:
+                light = replace(light, sky=None)
     out = np.zeros((len(texels), 3))
     cache: dict = {}  # one lattice cache for every chunk (bake.gather.Gather.corner_cache)
     for s in range(0, len(texels), _CHUNK):
