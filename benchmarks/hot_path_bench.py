@@ -20,7 +20,6 @@ workers; the whole transport on both. Writes benchmarks/results/<name>.csv and p
 from __future__ import annotations
 
 import argparse
-import csv
 import sys
 import time
 from pathlib import Path
@@ -30,6 +29,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+
+from per_process import write_csv  # noqa: E402  (benchmarks/, beside this script)
 
 import scenes  # noqa: E402  (tests/scenes.py: engine scenes)
 from ovrad_addon import (  # noqa: E402
@@ -169,10 +170,7 @@ def main() -> None:
     a = ap.parse_args()
     rows = [r for scene in a.scene for r in one(scene, a.patches, a.repeat)]
     out = RESULTS / f"{a.name}.csv"
-    with open(out, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_csv(rows, out, tag="hot_path_bench")
     for r in rows:
         print(
             f"{r['scene']:8s} {r['rays']:9s} {r['measure']:26s} {r['per_second']:>12,d}/s"

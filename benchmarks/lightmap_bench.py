@@ -20,7 +20,6 @@ image bake alone), Cycles' its bake call. Writes benchmarks/results/lightmaps.cs
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import shlex
 import sys
@@ -34,6 +33,7 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
+from per_process import write_csv  # noqa: E402
 from real_scenes_bench import bake  # noqa: E402
 
 import real_scenes  # noqa: E402  (benchmarks/ is not a package)
@@ -182,17 +182,7 @@ def main(argv: list[str]) -> int:
         row = run_scene(name, folder, shlex.split(a.batch_args), a.samples)
         rows.append(row)
         print("lightmap_bench:", json.dumps(row), flush=True)
-    out = Path(a.output)
-    if a.append and out.exists():
-        with out.open(newline="") as f:
-            rows = list(csv.DictReader(f)) + rows
-    keys = list(dict.fromkeys(k for r in rows for k in r))
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with out.open("w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=keys)
-        w.writeheader()
-        w.writerows(rows)
-    print(f"lightmap_bench: wrote {out}")
+    write_csv(rows, a.output, append=a.append, tag="lightmap_bench")
     return 0
 
 

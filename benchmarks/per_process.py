@@ -23,10 +23,17 @@ def run_sizes(script: str, sizes, extra: list[str], show: Callable[[dict], str])
     return rows
 
 
-def write_csv(rows: list[dict], path: Path) -> None:
+def write_csv(rows: list[dict], path, fields=None, append: bool = False, tag: str = "") -> None:
+    """Write rows (dicts) to the CSV file path, its columns `fields` (default: every row's keys,
+    in the order they first appear); append: after the rows already in the file. Prints where."""
+    path = Path(path)
+    if append and path.exists():
+        with path.open(newline="") as fh:
+            rows = list(csv.DictReader(fh)) + list(rows)
+    fields = list(fields) if fields is not None else list(dict.fromkeys(k for r in rows for k in r))
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w = csv.DictWriter(fh, fieldnames=fields)
         w.writeheader()
         w.writerows(rows)
-    print(f"wrote {path}")
+    print(f"{tag + ': ' if tag else ''}wrote {path}", flush=True)

@@ -11,7 +11,6 @@ baked mesh against benchmarks/reference/real/<scene>.npz. Writes benchmarks/resu
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import subprocess
 import sys
@@ -24,6 +23,8 @@ import bpy
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
+from per_process import write_csv  # noqa: E402
+
 import real_scenes  # noqa: E402  (benchmarks/ is not a package)
 from make_real_reference import load  # noqa: E402
 
@@ -85,13 +86,7 @@ def main(argv: list[str]) -> int:
         rows.append(row)
         print("real_scenes_bench:", json.dumps(row), flush=True)
     keys = sorted({k for r in rows for k in r}, key=lambda k: (k != "scene", k))
-    out = Path(a.output)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with out.open("w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=keys)
-        w.writeheader()
-        w.writerows(rows)
-    print(f"real_scenes_bench: wrote {out}")
+    write_csv(rows, a.output, keys, tag="real_scenes_bench")
     return 0
 
 

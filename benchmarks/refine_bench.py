@@ -13,7 +13,6 @@ pass, and the reconstruction. Writes benchmarks/results/refine[_<scene>].csv.
 from __future__ import annotations
 
 import argparse
-import csv
 import importlib
 import sys
 import time
@@ -23,6 +22,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 import make_reference  # noqa: E402  (benchmarks/ is not a package)
 import speed_vs_error  # noqa: E402
+from per_process import write_csv  # noqa: E402
 
 import scenes  # noqa: E402
 
@@ -71,11 +71,7 @@ def main(argv: list[str]) -> int:
             rows.append(row)
             print("refine_bench:", row, flush=True)
     out = HERE / "results" / ("refine.csv" if a.scene == "cornell" else f"refine_{a.scene}.csv")
-    with open(out, "w", newline="") as fh:
-        w = csv.DictWriter(fh, list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-    print(f"refine_bench: wrote {out}")
+    write_csv(rows, out, tag="refine_bench")
     return 0
 
 
