@@ -16,8 +16,6 @@ is the one giving the texel density asked for (texels per metre), unless a fixed
 
 from __future__ import annotations
 
-import os
-import tempfile
 import time
 from dataclasses import dataclass, field
 
@@ -27,13 +25,10 @@ from bpy.props import EnumProperty, FloatProperty, IntProperty, StringProperty
 
 from ..ovrad_addon import OvradError, lightmap, names
 from ..ovrad_addon import texels as bake
-from . import attributes, lightmap_atlas, lightmap_uv, png16, polls, properties, scene_model
+from . import attributes, image_files, lightmap_atlas, lightmap_uv, polls, properties, scene_model
 from .solution import load_solution
 
-IMAGE_MARK = "ovrad_bake"  # custom property on images this operator made (only those are replaced)
 DEFAULT_PATH = "//ovrad/{object}.exr"
-EXTENSIONS = {"OPEN_EXR": ".exr", "PNG": ".png"}  # the file format of an image bake, by its extension
-FORMAT_NAMES = {"OPEN_EXR": "OpenEXR", "PNG": "16-bit PNG"}
 _LISTENERS: list = []
 # A UV map's fitness for a lightmap is checked at the image's size, at most this many texels per side.
 FIT_CHECK_SIZE = 2048
@@ -63,90 +58,6 @@ def add_listener(listener) -> callable:
     the function that removes the listener."""
     _LISTENERS.append(listener)
     return lambda: _LISTENERS.remove(listener)
-
-
-def resolve_path(template: str, obj_name: str, file_format: str = "OPEN_EXR") -> str:
-    """Absolute file path for an object; '//' needs a saved .blend file. A path without an
-    extension gets the format's; one with another extension is refused."""
-    path = template.replace("{object}", bpy.path.clean_name(obj_name))
-    if path.startswith("//") and not bpy.data.filepath:
-        raise OvradError(
-            "the output path is relative ('//') but the .blend file is not saved: give a full path"
-        )
-    path = os.path.abspath(bpy.path.abspath(path))
-    ext = EXTENSIONS[file_format]
-    have = os.path.splitext(path)[1]
-    if not have:
-        path += ext
-    elif have.lower() != ext:
-        raise OvradError(f"the output must be a {FORMAT_NAMES[file_format]} file ({ext}), got '{path}'")
-    return path
-
-
-def prepare_folder(path: str, created: list) -> None:
-    """Make the file's folder (recording what was created) and check a file can be written there."""
-    folder = os.path.dirname(path)
-    missing = []
-    probe = folder
-    while not os.path.exists(probe):
-        missing.append(probe)
-        probe = os.path.dirname(probe)
-    try:
-        for d in reversed(missing):
-            os.mkdir(d)
-            created.append(d)
-        if os.path.isdir(path):
-            raise OSError("it is a folder")
-        with tempfile.NamedTemporaryFile(dir=folder, prefix=".ovrad-probe-"):
-            pass
-    except OSError as e:
-        raise OvradError(f"cannot write '{path}': {e.strerror or e}") from None
-
-
-def _remove_created(created: list) -> None:
-    for d in reversed(created):
-        try:
-            os.rmdir(d)
-        except OSError:
-            pass
-
-
-def write_image(
-    name: str, pixels: np.ndarray, path: str, stored_path: str, file_format: str = "OPEN_EXR"
-) -> bpy.types.Image:
-    """Save pixels (H, W, 4) as a 32-bit float EXR (or a 16-bit PNG, png16.py), then create or
-    replace the image `name` (a PNG's holds the file's values; its exposure is the image's custom
-    property names.PROP_EXPOSURE)."""
-    h, w = pixels.shape[:2]
-    if file_format == "PNG":
-        try:
-            exposure = png16.write(path, pixels)
-            img = bpy.data.images.load(path, check_existing=False)
-            img.colorspace_settings.name = "Non-Color"  # linear values, no view transform
-            img.reload()
-        except (OSError, RuntimeError) as e:
-            raise OvradError(f"cannot write '{path}': {str(e).strip().splitlines()[0]}") from None
-        img[names.PROP_EXPOSURE] = exposure
-    else:
-        img = bpy.data.images.new(name + ".tmp", w, h, alpha=True, float_buffer=True)
-        try:
-            img.colorspace_settings.name = "Non-Color"  # linear values, no view transform
-            img.pixels.foreach_set(np.ascontiguousarray(pixels, np.float32).ravel())
-            img.file_format = "OPEN_EXR"
-            img.filepath_raw = path
-            img.save()
-        except RuntimeError as e:
-            bpy.data.images.remove(img)
-            raise OvradError(f"cannot write '{path}': {str(e).strip().splitlines()[0]}") from None
-    img.filepath_raw = stored_path
-    img[IMAGE_MARK] = True
-    img.use_fake_user = True  # kept in the saved file even before a material uses it
-    old = bpy.data.images.get(name)
-    if old is not None and old.get(IMAGE_MARK):
-        old.user_remap(img)  # materials using the earlier bake now show this one
-        bpy.data.images.remove(old)
-    img.name = name
-    return img
 
 
 @dataclass
@@ -430,8 +341,8 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
                     "; ".join(n["why"] for n in not_baked) or "nothing to bake: select the meshes to bake"
                 )
             for job in jobs:
-                job.path = resolve_path(self.filepath, job.file_name, self.file_format)
-                prepare_folder(job.path, created)
+                job.path = image_files.resolve_path(self.filepath, job.file_name, self.file_format)
+                image_files.prepare_folder(job.path, created)
             solution = load_solution(context, model)
             results, steps = [], []
             for job in jobs:
@@ -443,7 +354,7 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
             entries = []
             for job, img in results:
                 stored = bpy.path.relpath(job.path) if self.filepath.startswith("//") else job.path
-                image = write_image(job.image_name, img, job.path, stored, self.file_format)
+                image = image_files.write_image(job.image_name, img, job.path, stored, self.file_format)
                 exposure = image.get(names.PROP_EXPOSURE) if self.file_format == "PNG" else None
                 for obj in job.baked:
                     obj[names.PROP_LIGHTMAP_IMAGE], obj[names.PROP_LIGHTMAP_UV_MAP] = image.name, job.uv_map
@@ -459,7 +370,7 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
                         )
                     )
         except OvradError as e:
-            _remove_created(created)
+            image_files.remove_created(created)
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
         for n in not_baked:
