@@ -11,6 +11,8 @@ Scenes, each with its converged Cycles reference:
 - every scene of the real-scenes set (benchmarks/real_scenes.py), e.g. lamps_doorway: two rooms
   joined by a doorway, lit by a point, a spot, an area lamp and a sun through a window;
   benchmarks/reference/real/<scene>.npz (make_real_reference.py). `--scene real` runs them all.
+- production: the production room (scripts/make_production_scene.py, 100 k triangles, 16
+  receivers); benchmarks/reference/real/production.npz (make_production_reference.py).
 
 Each scene is saved once to a temporary .blend that every bake opens afresh. ovrad bakes through
 the batch command's own code (scripts/ovrad_batch.py, run in this process: `--input scene.blend
@@ -51,7 +53,7 @@ import real_scenes  # noqa: E402
 import scenes  # noqa: E402
 
 RESULTS = HERE / "results"
-SCENES = ("cornell", "lamps", *real_scenes.SCENES)
+SCENES = ("cornell", "lamps", *real_scenes.SCENES, "production")
 FIELDS = [
     "scene",
     "method",
@@ -126,7 +128,13 @@ class Scene:
     def __init__(self, name: str, folder: Path):
         self.name = name
         self.blend = folder / f"{name}.blend"
-        if name in real_scenes.SCENES:
+        if name == "production":
+            import make_production_reference  # builds the room in a Blender process of its own
+
+            self.ref = make_real_reference.load(name)
+            self.blend = make_production_reference.build(folder)
+            self.keep_world = False  # as its reference was made
+        elif name in real_scenes.SCENES:
             self.ref = make_real_reference.load(name)
             real_scenes.build(name, self.blend)
             self.keep_world = True  # the reference keeps the (black) world as the scene has it
@@ -231,8 +239,12 @@ def plot(rows, scenes_run: list[Scene], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, len(scenes_run), figsize=(6.5 * len(scenes_run), 5), squeeze=False)
-    for ax, sc in zip(axes[0], scenes_run, strict=True):
+    cols = min(4, len(scenes_run))
+    rows_n = -(-len(scenes_run) // cols)
+    fig, axes = plt.subplots(rows_n, cols, figsize=(6.5 * cols, 5 * rows_n), squeeze=False)
+    for ax in axes.ravel()[len(scenes_run) :]:
+        ax.set_visible(False)
+    for ax, sc in zip(axes.ravel(), scenes_run, strict=False):
         mine = [r for r in rows if r["scene"] == sc.name]
         cyc = sorted((r for r in mine if r["method"] == "cycles"), key=lambda r: r["seconds"])
         if cyc:
