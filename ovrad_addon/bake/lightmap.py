@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 
 from ..light.sky import sky_irradiance
 from ..overlap.queries import alpha_at
-from ..overlap.sight import blocked
+from ..overlap.sight import COVER, blocked, geometry_over
 from ..radiosity.emission import bake_sky, own_emission
 from .gather import GATHER_SEED, Gather, gather_unique
 from .lattice import may_see_sky
@@ -206,9 +206,11 @@ def edge_texels(
     """(k,) bool: texels (inside their island) on a geometric edge of the light: their summed value
     differs from an 8-neighbour's by more than jump x the larger of the two (differences under
     1e-6 x the largest value ignored) and the segment between their points, lifted a hundredth of
-    a texel off the surface, is blocked: a wall standing on the surface, or the surface entering a
-    solid. A shadow's or an albedo's edge, with nothing between the texels, is none: there the
-    texels keep their centre's value (what a vertex there gets). sizes (k,): texel_sizes()."""
+    a texel off the surface, is blocked (a wall standing on the surface, or the surface entering a
+    solid), or one of them is covered and the other not (geometry over it closer than COVER x the
+    median patch radius: a panel under a ceiling, a board over a floor). A shadow's or an albedo's
+    edge, with nothing between or over the texels, is none: there the texels keep their centre's
+    value (what a vertex there gets). sizes (k,): texel_sizes()."""
     k = len(texels)
     level = np.full(width * height, np.nan)
     level[texels.texel] = np.asarray(values, np.float64).sum(axis=1)
@@ -236,6 +238,21 @@ def edge_texels(
     normals = bake_normals(problem, tri, bake_sides(problem, tri))
     lift = np.maximum(0.01 * np.asarray(sizes, np.float64)[a], 1e-6 * problem.surfaces.extent)
     hit = blocked(problem.index, normals, lift, texels.points[a], texels.points[b])
+    # ... or one of the two is covered and the other not (a panel hung under a ceiling, a board
+    # low over a floor: the contacts' rule, overlap.sight.covered, at the median patch radius)
+    ends = np.unique(np.concatenate([a, b]))
+    t_end = texels.triangle[ends]
+    reach = np.full(len(ends), COVER * float(np.median(problem.atlas.radii)))
+    up = np.maximum(0.01 * np.asarray(sizes, np.float64)[ends], 1e-6 * problem.surfaces.extent)
+    over = np.zeros(k, bool)
+    over[ends] = geometry_over(
+        problem.index.rays,
+        texels.points[ends],
+        bake_normals(problem, t_end, bake_sides(problem, t_end)),
+        up,
+        reach,
+    )
+    hit |= over[a] != over[b]
     out[a[hit]] = True
     out[b[hit]] = True
     return out

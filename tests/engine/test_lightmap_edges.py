@@ -1,11 +1,12 @@
 """Lightmap texels on a geometric edge of the light (bake/lightmap.py): where a wall stands on a
-floor the texels on both sides of the line hold the mean of their sub-points' light; a shadow's
-edge with nothing standing between the texels keeps the centre values.
+floor, or along the outline of a mat lying just over it, the texels on both sides of the line hold
+the mean of their sub-points' light; a shadow's edge with nothing standing between or lying over
+the texels keeps the centre values.
 
 A 2 m floor (UV = xy / 2) under a point lamp, a closed slab standing on it from x = 1.02 to 1.12
-(a texel column straddles its face: texels are 5 cm, their edges at multiples of 5 cm) and a
-small plate floating over the floor's lit side. Nothing reflects onto the floor (the slab and
-the plate are black non-receivers), so the radiance anywhere on it is rho x direct / pi in closed
+(a texel column straddles its face: texels are 5 cm, their edges at multiples of 5 cm), a small
+plate floating 0.6 m over the floor's lit side and a mat 1 cm over it. Nothing reflects onto the floor (the slab, the
+plate and the mat are black non-receivers), so the radiance anywhere on it is rho x direct / pi in closed
 form: the point lamp's irradiance where the segment to the lamp misses the slab and the plate.
 """
 
@@ -31,34 +32,57 @@ RHO = 0.8
 SIZE = 40  # texels per side over the 2 m floor: 5 cm texels
 SLAB = (1.02, 1.12)  # x range of the slab; it spans the floor's whole depth, 1.5 m high
 PLATE = ((0.3, 0.5), (0.8, 1.2), 0.6)  # x range, y range, height of the floating plate
+MAT = ((0.22, 0.42), (0.22, 0.42), 0.01)  # ... and of a mat lying 1 cm over the floor (a cover)
 LAMP = np.array([0.5, 1.0, 1.6])
 POWER = 300.0
 
 
 def closed_form(points: np.ndarray) -> np.ndarray:
     """Radiance (m,) on the floor z = 0: rho / pi x the point lamp's irradiance, 0 where the segment
-    to the lamp crosses the slab (the floor under it included) or the plate."""
+    to the lamp crosses the slab (the floor under it included), the plate or the mat."""
     v = LAMP - points
     d2 = np.einsum("ij,ij->i", v, v)
     H = POWER / (4 * np.pi) * v[:, 2] / np.sqrt(d2) / d2
     # the slab: the floor under it, and behind it (from x = 2 the segment to the lamp passes its
     # far face at 0.94 m, under its top at 1.5 m); in front of it the segment runs away from it
     slab = points[:, 0] >= SLAB[0]
-    (x0, x1), (y0, y1), z = PLATE
-    t = (z - points[:, 2]) / v[:, 2]
-    cross = points[:, :2] + t[:, None] * v[:, :2]
-    plate = (cross[:, 0] > x0) & (cross[:, 0] < x1) & (cross[:, 1] > y0) & (cross[:, 1] < y1)
-    return np.where(slab | plate, 0.0, RHO * H / np.pi)
+    hidden = slab
+    for (x0, x1), (y0, y1), z in (PLATE, MAT):
+        t = (z - points[:, 2]) / v[:, 2]
+        cross = points[:, :2] + t[:, None] * v[:, :2]
+        hidden = hidden | (cross[:, 0] > x0) & (cross[:, 0] < x1) & (cross[:, 1] > y0) & (cross[:, 1] < y1)
+    return np.where(hidden, 0.0, RHO * H / np.pi)
+
+
+def expected_edges(col, row) -> np.ndarray:
+    """(k,) bool per texel (column, row): columns 19 ([0.95, 1.00] m) and 20 ([1.00, 1.05] m: the
+    slab's face at 1.02 crosses it) are on the wall's line, and the texels on either side of the
+    mat's outline (a centre under it next to one that is not) on the cover's: the mat covers the
+    centres of a 4 x 4 block, its 12 outer texels and the 20 round it. Nothing else is, the
+    plate's shadow edges included."""
+    (x0, x1), (y0, y1), _ = MAT
+    c = (np.arange(SIZE) + 0.5) * 2.0 / SIZE
+    under = np.pad(((c[:, None] > y0) & (c[:, None] < y1)) & ((c > x0) & (c < x1)), 1, mode="edge")
+    rim = np.zeros((SIZE, SIZE), bool)
+    for dy in (0, 1, 2):
+        for dx in (0, 1, 2):
+            rim |= under[dy : dy + SIZE, dx : dx + SIZE] != under[1:-1, 1:-1]
+    assert rim.sum() == 12 + 20
+    return (col == 19) | (col == 20) | rim[row, col]
 
 
 @pytest.fixture(scope="module")
 def floor_scene():
     fv, ft = scenes.plane(size=2.0, n=8)
     slab = [f for k, f in enumerate(scenes.box_faces((SLAB[0], 0.0, 0.0), (SLAB[1], 2.0, 1.5))) if k != 0]
-    (x0, x1), (y0, y1), z = PLATE
-    plate = scenes.quad((x0, y0, z), (x1, y0, z), (x1, y1, z), (x0, y1, z))
-    v, t, o = scenes.merge([(fv, ft), *slab, plate], obj=[0] + [1] * len(slab) + [2])
-    s = Surfaces.from_arrays(v, t, object_index=o, reflectance=[RHO] * 3, receiver=[True, False, False])
+    flat = [
+        scenes.quad((x0, y0, z), (x1, y0, z), (x1, y1, z), (x0, y1, z))
+        for (x0, x1), (y0, y1), z in (PLATE, MAT)
+    ]
+    v, t, o = scenes.merge([(fv, ft), *slab, *flat], obj=[0] + [1] * len(slab) + [2, 3])
+    s = Surfaces.from_arrays(
+        v, t, object_index=o, reflectance=[RHO] * 3, receiver=[True, False, False, False]
+    )
     problem = prepare(s, build_atlas(s, AtlasSettings(patch_count=300)))
     lamp = Lamp("POINT", position=tuple(LAMP), power=POWER)
     state = solve(problem, (lamp,))
@@ -74,7 +98,7 @@ def test_floor_is_laid_out_as_the_test_assumes(floor_scene):
     assert world[:, :, :2].min() == 0.0 and world[:, :, :2].max() == 2.0
 
 
-def test_texels_on_a_wall_standing_on_the_floor_hold_their_mean_and_shadow_edges_their_centre(floor_scene):
+def test_texels_on_a_wall_or_a_covers_outline_hold_their_mean_and_shadow_edges_their_centre(floor_scene):
     problem, state, light, floor, world, uv = floor_scene
     texels, values, _, edges = bake_lightmap(
         problem, state.radiosity, uv, world, floor, SIZE, "RADIANCE", state.first_shot, light
@@ -82,14 +106,13 @@ def test_texels_on_a_wall_standing_on_the_floor_hold_their_mean_and_shadow_edges
     assert len(texels) == SIZE * SIZE
     assert texels.outside is None or not texels.outside.any()
     col, row = texels.texel % SIZE, texels.texel // SIZE
-    # Columns 19 ([0.95, 1.00] m) and 20 ([1.00, 1.05] m: the slab's face at 1.02 crosses it) are on
-    # the wall's line; nothing else is, the plate's shadow edges included.
     on_line = (col == 19) | (col == 20)
-    assert edges == on_line.sum() == 2 * SIZE
+    on_edge = expected_edges(col, row)
+    assert edges == on_edge.sum() == 2 * SIZE + 12 + 20
     s = SUPERSAMPLE
     offsets = (np.arange(s) + 0.5) / s
     expected = closed_form(texels.points)
-    for k in np.flatnonzero(on_line):
+    for k in np.flatnonzero(on_edge):
         sx, sy = np.meshgrid((col[k] + offsets) * 2.0 / SIZE, (row[k] + offsets) * 2.0 / SIZE)
         sub = np.column_stack([sx.ravel(), sy.ravel(), np.zeros(s * s)])
         expected[k] = closed_form(sub).mean()
@@ -111,7 +134,7 @@ def test_edges_need_a_jump_and_something_between(floor_scene):
     sizes = texel_sizes(uv, world, SIZE)[texels.triangle - floor[0]]
     col = texels.texel % SIZE
     got = edge_texels(problem, texels, values, SIZE, SIZE, sizes)
-    np.testing.assert_array_equal(got, (col == 19) | (col == 20))
+    np.testing.assert_array_equal(got, expected_edges(col, texels.texel // SIZE))
     # a uniform image has no edge, whatever stands on the floor
     flat = np.ones_like(values)
     assert not edge_texels(problem, texels, flat, SIZE, SIZE, sizes).any()
