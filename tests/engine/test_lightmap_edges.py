@@ -5,9 +5,10 @@ the texels keeps the centre values.
 
 A 2 m floor (UV = xy / 2) under a point lamp, a closed slab standing on it from x = 1.02 to 1.12
 (a texel column straddles its face: texels are 5 cm, their edges at multiples of 5 cm), a small
-plate floating 0.6 m over the floor's lit side and a mat 1 cm over it. Nothing reflects onto the floor (the slab, the
-plate and the mat are black non-receivers), so the radiance anywhere on it is rho x direct / pi in closed
-form: the point lamp's irradiance where the segment to the lamp misses the slab and the plate.
+plate floating 0.6 m over the floor's lit side and a mat 1 cm over it. Nothing reflects onto the
+floor (the slab, the plate and the mat are black non-receivers), so the radiance anywhere on it is
+rho x direct / pi in closed form: the point lamp's irradiance where the segment to the lamp misses
+the slab, the plate and the mat.
 """
 
 from __future__ import annotations
