@@ -200,17 +200,21 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
             return []
         groups = [list(range(len(ok)))] if self.size else lightmap_atlas.groups(needs, self.max_size)
         out = []
-        for group in groups:
+        while groups:
+            group = groups.pop(0)
             objs = [ok[i] for i in group]
             try:
                 size = lightmap_uv.make_shared(context, objs, [densities[i] for i in group], self.margin)
                 if self.size:
                     size = self.size
+                elif size > self.max_size and len(group) > 1:  # packed looser than guessed: halve it
+                    groups += lightmap_atlas.halves(group, needs)
+                    continue
                 elif size > self.max_size:
                     raise OvradError(
-                        f"a shared atlas of {len(objs)} meshes needs {size} x {size} texels at this texel "
-                        f"density, more than Max Size ({self.max_size}): lower the texel density, or raise "
-                        "Max Size"
+                        f"'{objs[0].name}' needs {size} x {size} texels at this texel density once packed, "
+                        f"more than Max Size ({self.max_size}): lower the texel density or its Lightmap "
+                        "Scale, or raise Max Size"
                     )
             except OvradError as e:
                 not_baked += [dict(object=o.name, why=str(e)) for o in objs]

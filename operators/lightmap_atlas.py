@@ -13,7 +13,8 @@ import bpy
 
 ATLAS_NAME = "ovrad_atlas"  # the image (and the {object} of the file path) of a shared atlas
 # Islands packed by their bounding boxes fill about this share of an atlas: meshes are grouped so
-# that each group's texels at the density fit in FILL x the largest image.
+# that each group's texels at the density fit in FILL x the largest image (a group that packs
+# larger than the largest image all the same is halved until it fits).
 FILL = 0.6
 
 
@@ -40,6 +41,17 @@ def groups(needs: list[float], max_size: int) -> list[list[int]]:
             out.append([i])
             used.append(needs[i])
     return [sorted(g) for g in out]
+
+
+def halves(group: list[int], needs: list[float]) -> list[list[int]]:
+    """A group split in two of about equal need: largest first, each into the half needing less."""
+    out: list[list[int]] = [[], []]
+    used = [0.0, 0.0]
+    for i in sorted(group, key=lambda i: (-needs[i], i)):
+        k = 0 if used[0] <= used[1] else 1
+        out[k].append(i)
+        used[k] += needs[i]
+    return [sorted(h) for h in out if h]
 
 
 def atlas_names(count: int) -> list[str]:

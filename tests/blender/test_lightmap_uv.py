@@ -442,6 +442,9 @@ def test_shared_atlas_groups_fill_at_most_the_largest_image(ovrad):
     # 0.6 x 100^2 = 6000 texels per atlas: largest first, each into the first with room
     assert groups([5000, 1000, 3000, 2500, 9000], 100) == [[4], [0, 1], [2, 3]]
     assert groups([], 100) == []
+    halves = ovrad.operators.lightmap_atlas.halves
+    assert halves([0, 1, 2, 3], [5.0, 1.0, 3.0, 2.5]) == [[0, 1], [2, 3]]
+    assert halves([7], [0, 0, 0, 0, 0, 0, 0, 1.0]) == [[7]]
     names = ovrad.operators.lightmap_atlas.atlas_names
     assert names(1) == ["ovrad_atlas"] and names(2) == ["ovrad_atlas_1", "ovrad_atlas_2"]
 
@@ -519,3 +522,41 @@ def test_preview_of_lightmaps_before_any_image_bake_is_refused(ovrad, scene):
     with pytest.raises(RuntimeError, match="bake to images first"):
         bpy.ops.ovrad.preview(source="IMAGE")
     assert slots_state() == before and not ovrad.operators.preview.is_active()
+
+
+def test_shared_atlases_split_under_max_size_and_say_what_to_change(ovrad, scene, tmp_path):
+    # At 120 texels per metre each receiver needs 60-100 texels a side: a 128 px Max Size holds
+    # one or two of them per atlas (groups that pack larger than guessed are halved).
+    results = []
+    remove = ovrad.operators.bake_image.add_listener(results.append)
+    try:
+        assert bake(tmp_path, atlas="SHARED", max_size=128) == {"FINISHED"}
+    finally:
+        remove()
+    images, not_baked = results[-1]["images"], results[-1]["not_baked"]
+    names = {e["image"] for e in images}
+    assert len(names) >= 2 and all(n.startswith("ovrad_atlas_") for n in names)
+    assert all(e["size"] <= 128 for e in images)
+    for n in names:
+        assert (tmp_path / f"{n}.exr").is_file()
+        assert tuple(bpy.data.images[n].size) == ({e["size"] for e in images if e["image"] == n}.pop(),) * 2
+    # every receiver is in one atlas (none needs more than 128 texels a side on its own)
+    assert sorted(e["object"] for e in images) == sorted(RECEIVERS) and not not_baked
+    # at 90 the tall block (96 texels a side once packed) is not baked, with what to change, and
+    # the others are
+    results.clear()
+    remove = ovrad.operators.bake_image.add_listener(results.append)
+    try:
+        assert bake(tmp_path / "small", atlas="SHARED", max_size=90) == {"FINISHED"}
+    finally:
+        remove()
+    left = results[-1]["not_baked"]
+    assert [n["object"] for n in left] == ["TallBlock"] and "raise Max Size" in left[0]["why"]
+    assert sorted(e["object"] for e in results[-1]["images"]) == sorted(set(RECEIVERS) - {"TallBlock"})
+
+
+def test_a_shared_atlas_with_a_named_uv_map_is_refused_and_changes_nothing(scene, tmp_path):
+    before = uv_state()
+    with pytest.raises(RuntimeError, match="shared atlas bakes through UV maps ovrad makes"):
+        bake(tmp_path, atlas="SHARED", uv_map="UVMap")
+    assert uv_state() == before and not list(tmp_path.iterdir())
