@@ -24,6 +24,10 @@ meshes but the emitters' ("error"); "error_seen" leaves out the vertices nothing
 box's block bottoms and the floor under the blocks, whose reference is ~0; on lamps_doorway it
 equals "error").
 
+Then, in the same run, the engine's stages (transport, alpha at hits, the gather's lattice read)
+in rays or hits per second against raw embree rays (benchmarks/hot_path_bench.py, --stages;
+<name>_stages.csv).
+
 --sweep adds ovrad bakes over --counts x --betas x --solvers (batch options --patch-count, --beta,
 --solver; the file's other settings). Writes benchmarks/results/<name>.csv (one row per bake, a
 `scene` column) and <name>.png (log-log, one panel per scene); <name> is speed_vs_error by default.
@@ -35,6 +39,7 @@ import argparse
 import csv
 import importlib.util
 import json
+import subprocess
 import sys
 import tempfile
 import time
@@ -319,6 +324,14 @@ def main(argv: list[str]) -> int:
     p.add_argument("--betas", nargs="+", choices=("box", "smooth"), default=["box", "smooth"])
     p.add_argument("--solvers", nargs="+", choices=("exact", "paper"), default=["exact", "paper"])
     p.add_argument("--name", default="speed_vs_error", help="results file name without .csv")
+    p.add_argument(
+        "--stages",
+        nargs="*",
+        choices=("cornell", "rooms"),
+        default=["cornell", "rooms"],
+        help="engine scenes whose per-stage rays per second against raw embree are measured in the "
+        "same run (benchmarks/hot_path_bench.py; none listed: skipped)",
+    )
     a = p.parse_args(argv)
     folder = Path(tempfile.mkdtemp(prefix="ovrad-speed-"))
     RESULTS.mkdir(exist_ok=True)
@@ -343,6 +356,11 @@ def main(argv: list[str]) -> int:
             w.writeheader()
             w.writerows(rows)
     plot(rows, done, out.with_suffix(".png"))
+    if a.stages:  # the engine's stages against raw embree rays, in this same run (its own process:
+        # tests/scenes.py, which it builds its scenes with, shares a name with benchmarks/scenes.py)
+        cmd = [sys.executable, str(HERE / "hot_path_bench.py"), "--scene", *a.stages]
+        subprocess.run([*cmd, "--repeat", "5", "--name", f"{a.name}_stages"], check=True)
+        print(f"speed_vs_error: wrote {RESULTS / f'{a.name}_stages.csv'}")
     meta = {sc.name: dict(sc.ref["meta"]) for sc in done}
     print(f"speed_vs_error: references {json.dumps(meta)}")
     print(f"speed_vs_error: wrote {out} and {out.with_suffix('.png')}")
