@@ -181,8 +181,9 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
         order = {o.name: i for i, o in enumerate(targets)}
         return sorted(chosen, key=lambda c: order[c[0].name])
 
-    def shared_maps(self, context, model, depsgraph, objects, not_baked) -> list:
-        """(objects, image size) per shared atlas, their UV maps made together (lightmap_atlas)."""
+    def shared_maps(self, context, model, depsgraph, objects, not_baked, others: int = 0) -> list:
+        """(objects, image size) per shared atlas, their UV maps made together (lightmap_atlas);
+        others: the images baked besides (the file path must then hold {object})."""
         ok, densities, needs = [], [], []
         for obj in objects:
             try:
@@ -199,6 +200,8 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
         if not ok:
             return []
         groups = [list(range(len(ok)))] if self.size else lightmap_atlas.groups(needs, self.max_size)
+        if "{object}" not in self.filepath and len(groups) + others > 1:  # before any UV map is made
+            raise OvradError("several images would be baked: put {object} in the file path")
         out = []
         while groups:
             group = groups.pop(0)
@@ -208,6 +211,10 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
                 if self.size:
                     size = self.size
                 elif size > self.max_size and len(group) > 1:  # packed looser than guessed: halve it
+                    if "{object}" not in self.filepath:
+                        raise OvradError(
+                            "the meshes need more than one atlas at Max Size: put {object} in the file path"
+                        )
                     groups += lightmap_atlas.halves(group, needs)
                     continue
                 elif size > self.max_size:
@@ -324,8 +331,10 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
             # the scene, read once for this bake: the targets' meshes here, the solution's inputs below
             depsgraph = context.evaluated_depsgraph_get()
             model = scene_model.read_model(depsgraph, context.scene)
+            if "{object}" not in self.filepath and len(own) + bool(shared) > 1:  # before any change
+                raise OvradError("several images would be baked: put {object} in the file path")
             chosen = self.choose_maps(context, model, depsgraph, own, not_baked)
-            atlases = self.shared_maps(context, model, depsgraph, shared, not_baked)
+            atlases = self.shared_maps(context, model, depsgraph, shared, not_baked, len(chosen))
             if any(least for *_, least in chosen) or atlases:  # made UV maps: read the updated meshes
                 depsgraph = context.evaluated_depsgraph_get()
             jobs = [
@@ -337,8 +346,6 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
                 Job(objs, lightmap_uv.LIGHTMAP_UV, size, name, name)
                 for (objs, size), name in zip(atlases, names_of, strict=True)
             ]
-            if len(jobs) > 1 and "{object}" not in self.filepath:
-                raise OvradError("several images are baked: put {object} in the file path")
             jobs = [j for j in jobs if self.read_job(context, model, depsgraph, j, not_baked)]
             if not jobs:
                 raise OvradError(

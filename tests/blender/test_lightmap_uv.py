@@ -560,3 +560,7 @@ def test_a_shared_atlas_with_a_named_uv_map_is_refused_and_changes_nothing(scene
     with pytest.raises(RuntimeError, match="shared atlas bakes through UV maps ovrad makes"):
         bake(tmp_path, atlas="SHARED", uv_map="UVMap")
     assert uv_state() == before and not list(tmp_path.iterdir())
+    # several atlases (at a 128 px Max Size) into one file path: refused before a UV map is made
+    with pytest.raises(RuntimeError, match="put {object} in the file path"):
+        bake(tmp_path, atlas="SHARED", max_size=128, filepath=str(tmp_path / "one.exr"))
+    assert uv_state() == before and not list(tmp_path.iterdir())
