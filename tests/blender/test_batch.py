@@ -181,6 +181,7 @@ def test_image_target_writes_exr_next_to_the_output(ovrad, run_blender, tmp_path
     r = json.loads(report.read_text())
     exr = tmp_path / "img" / "ovrad" / "Floor.exr"
     entry = dict(object="Floor", path=str(exr), uv_map="UVMap", size=32, format="OPEN_EXR", exposure=None)
+    entry["image"] = "Floor_ovrad"
     assert r["images"] == [entry] and exr.stat().st_size > 1000
     assert [n["object"] for n in r["not_baked"]] == [m for m in MESHES if m != "Floor"]
     assert "'Ceiling' not baked to an image: 'Ceiling' has no UV map" in proc.stdout
