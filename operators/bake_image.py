@@ -191,6 +191,7 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
                 density = lightmap_uv.density_per_unit(context.scene, obj, self.texel_density)
                 if self.size == 0:
                     lightmap_uv.check_density(obj.name, data.corners, density, self.max_size)
+                lightmap_uv.check_room(obj)  # one mesh that cannot take the map leaves the others be
             except OvradError as e:
                 not_baked.append(dict(object=obj.name, why=str(e)))
                 continue

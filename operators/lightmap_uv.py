@@ -136,23 +136,29 @@ def make(context, obj, density: float, padding: float) -> int:
     return make_shared(context, [obj], [density], padding)
 
 
+def check_room(obj) -> None:
+    """OvradError when ovrad cannot make its UV map on obj's mesh: a map of that name is the user's,
+    or the mesh has Blender's most UV maps already."""
+    layers = obj.data.uv_layers
+    if LIGHTMAP_UV in layers and not made_by_ovrad(obj.data):
+        raise OvradError(
+            f"'{obj.name}' has a UV map '{LIGHTMAP_UV}' that ovrad did not make: rename it, or name "
+            "it as the UV map to bake through"
+        )
+    if LIGHTMAP_UV not in layers and len(layers) >= MAX_UV_MAPS:
+        raise OvradError(
+            f"'{obj.name}' has {len(layers)} UV maps, Blender's most: name one of them as the UV map "
+            "to bake through"
+        )
+
+
 def make_shared(context, objects: list, densities: list, padding: float) -> int:
     """make() for several objects at once (each its own mesh): their LIGHTMAP_UV maps are
     unwrapped and packed together into one unit square, each object's islands at its own density
     (texels per scene unit) relative to the others; returns the image size giving every object
     at least its density. Every mesh is checked before any is changed."""
     for obj in objects:
-        layers = obj.data.uv_layers
-        if LIGHTMAP_UV in layers and not made_by_ovrad(obj.data):
-            raise OvradError(
-                f"'{obj.name}' has a UV map '{LIGHTMAP_UV}' that ovrad did not make: rename it, or name "
-                "it as the UV map to bake through"
-            )
-        if LIGHTMAP_UV not in layers and len(layers) >= MAX_UV_MAPS:
-            raise OvradError(
-                f"'{obj.name}' has {len(layers)} UV maps, Blender's most: name one of them as the UV map "
-                "to bake through"
-            )
+        check_room(obj)
     kept = []  # per mesh: its active and render UV map names, put back afterwards
     try:
         for obj in objects:

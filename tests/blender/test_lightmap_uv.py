@@ -226,6 +226,13 @@ def test_baking_again_replaces_only_the_map_ovrad_made(scene, tmp_path):
     before = uv_state()
     assert bake(tmp_path) == {"FINISHED"}
     assert uv_state()[wall.name, "ovrad_lightmap"] == before[wall.name, "ovrad_lightmap"]
+    # ... nor in a shared atlas, which the other receivers still go into
+    assert bake(tmp_path, atlas="SHARED") == {"FINISHED"}
+    assert uv_state()[wall.name, "ovrad_lightmap"] == before[wall.name, "ovrad_lightmap"]
+    assert scene.objects["LeftWall"].get("ovrad_lightmap_image") == "LeftWall_ovrad"  # its own bake's
+    assert all(
+        scene.objects[n]["ovrad_lightmap_image"] == "ovrad_atlas" for n in RECEIVERS if n != "LeftWall"
+    )
 
 
 def test_undo_removes_the_made_maps_and_images(scene, tmp_path):
