@@ -245,6 +245,19 @@ def test_undo_removes_the_made_maps_and_images(scene, tmp_path):
     bpy.ops.ed.undo()
     assert uv_state() == before
     assert not any(i.name.endswith("_ovrad") for i in bpy.data.images)
+    # a shared atlas, and the preview of it, the same
+    bpy.ops.ed.undo_push(message="again")
+    assert bake(tmp_path, atlas="SHARED") == {"FINISHED"}
+    bpy.ops.ed.undo_push(message="Bake to Image")
+    assert bpy.ops.ovrad.preview(source="IMAGE") == {"FINISHED"}
+    bpy.ops.ed.undo_push(message="Preview")
+    assert bpy.data.images.get("ovrad_atlas") is not None
+    assert any(m.name.startswith("ovrad preview") for m in bpy.data.materials)
+    bpy.ops.ed.undo()
+    assert not any(m.name.startswith("ovrad preview") for m in bpy.data.materials)
+    assert all(s.link == "DATA" for s in bpy.context.scene.objects["Floor"].material_slots)
+    bpy.ops.ed.undo()
+    assert uv_state() == before and bpy.data.images.get("ovrad_atlas") is None
 
 
 def test_a_named_uv_map_is_used_as_it_is(scene, tmp_path):
