@@ -112,15 +112,14 @@ def one(scene: str, patches: int, repeat: int) -> list[dict]:
         )
         return rate
 
+    def raw_rays(kind: str, o, d) -> float:
+        """Closest-hit rays per second on these rays, after one warm-up cast."""
+        index.rays.closest_hit(o, d, np.inf)
+        seconds = median_seconds(lambda: index.rays.closest_hit(o, d, np.inf), repeat)
+        return row(kind, "raw embree rays", len(d), seconds, None)
+
     o, d = transport_rays(problem, settings, rng)
-    index.rays.closest_hit(o, d, np.inf)  # warm-up
-    raw = row(
-        "transport",
-        "raw embree rays",
-        len(d),
-        median_seconds(lambda: index.rays.closest_hit(o, d, np.inf), repeat),
-        None,
-    )
+    raw = raw_rays("transport", o, d)
     row("transport", "rays and hit points", len(d), median_seconds(lambda: hits(index, o, d), repeat), raw)
     p, tri, side, _ = hits(index, o, d)
     alpha = median_seconds(lambda: alpha_at(atlas, index, contacts, p, tri, side), repeat)
@@ -129,14 +128,7 @@ def one(scene: str, patches: int, repeat: int) -> list[dict]:
     row("transport", "whole transport rays", problem.transport.rays, problem.seconds["transport"], raw)
 
     o, d = gather_rays(s, index, 256, rng)
-    index.rays.closest_hit(o, d, np.inf)
-    raw = row(
-        "gather",
-        "raw embree rays",
-        len(d),
-        median_seconds(lambda: index.rays.closest_hit(o, d, np.inf), repeat),
-        None,
-    )
+    raw = raw_rays("gather", o, d)
     p, tri, side, t = hits(index, o, d)
     values = rng.random((len(atlas), 3))  # what the lattice interpolates does not change its cost
     # the corner cache a gather leaves in Gather.corner_cache: the lattice its hits read
