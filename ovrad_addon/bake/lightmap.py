@@ -10,7 +10,7 @@ from dataclasses import replace
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..light.sky import sky_irradiance
+from ..light.direct import direct_irradiance
 from ..overlap.queries import alpha_at
 from ..overlap.sight import COVER, blocked, geometry_over
 from ..radiosity.emission import bake_sky, own_emission
@@ -78,18 +78,18 @@ def sparse_gather(
     normals = bake_normals(problem, tri, sides)
     own = own_emission(problem, light.emitters, light.emission_scale)
     seen = bake_sky(problem, light, radiosity) if sky else None
+    sky_only = replace(light, lamps=(), emitters=None)
 
     def gather(k):
         out = gather_unique(
             problem, Gather(radiosity, own, light.gather_rays), texels.points[k], normals[k], tri[k]
         )
-        if sky:
+        if sky:  # as a bake point's direct light gets it (bake.points), at these texels only
             pts = texels.points[k]
             a = alpha_at(problem.atlas, problem.index, problem.contacts, pts, tri[k], sides[k])
-            at = np.arange(len(k)) if seen is None else np.flatnonzero(may_see_sky(a, seen))
-            extent = problem.surfaces.extent
-            out[at] += sky_irradiance(
-                light.sky, problem.index.rays, pts[at], normals[k][at], extent, light.sky_samples
+            rays = problem.index.rays
+            out += direct_irradiance(
+                problem.emitter_rules, rays, sky_only, pts, normals[k], may_see_sky(a, seen)
             )[0]
         return out
 
