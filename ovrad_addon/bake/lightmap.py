@@ -234,25 +234,18 @@ def edge_texels(
     out = np.zeros(k, bool)
     if len(a) == 0:
         return out
-    tri = texels.triangle[a]
-    normals = bake_normals(problem, tri, bake_sides(problem, tri))
-    lift = np.maximum(0.01 * np.asarray(sizes, np.float64)[a], 1e-6 * problem.surfaces.extent)
-    hit = blocked(problem.index, normals, lift, texels.points[a], texels.points[b])
+    # the texels of the pairs: their normals and a lift of a hundredth of a texel, once each
+    ends, pair = np.unique(np.concatenate([a, b]), return_inverse=True)
+    pa, pb = pair[: len(a)], pair[len(a) :]
+    t_end = texels.triangle[ends]
+    normals = bake_normals(problem, t_end, bake_sides(problem, t_end))
+    lift = np.maximum(0.01 * np.asarray(sizes, np.float64)[ends], 1e-6 * problem.surfaces.extent)
+    hit = blocked(problem.index, normals[pa], lift[pa], texels.points[a], texels.points[b])
     # ... or one of the two is covered and the other not (a panel hung under a ceiling, a board
     # low over a floor: the contacts' rule, overlap.sight.covered, at the median patch radius)
-    ends = np.unique(np.concatenate([a, b]))
-    t_end = texels.triangle[ends]
     reach = np.full(len(ends), COVER * float(np.median(problem.atlas.radii)))
-    up = np.maximum(0.01 * np.asarray(sizes, np.float64)[ends], 1e-6 * problem.surfaces.extent)
-    over = np.zeros(k, bool)
-    over[ends] = geometry_over(
-        problem.index.rays,
-        texels.points[ends],
-        bake_normals(problem, t_end, bake_sides(problem, t_end)),
-        up,
-        reach,
-    )
-    hit |= over[a] != over[b]
+    over = geometry_over(problem.index.rays, texels.points[ends], normals, lift, reach)
+    hit |= over[pa] != over[pb]
     out[a[hit]] = True
     out[b[hit]] = True
     return out
