@@ -37,6 +37,13 @@ def atlas_objects(source: str | None = None) -> list:
     return [o for o in bpy.data.objects if is_atlas(o) and (source is None or o[names.PROP_SOURCE] == source)]
 
 
+def solved_atlases(scene) -> dict:
+    """Source object name -> its atlas object, for atlas objects in the scene holding a solution."""
+    return {
+        o[names.PROP_SOURCE]: o for o in scene.objects if is_atlas(o) and names.RADIOSITY in o.data.attributes
+    }
+
+
 # Blender's glTF exporter leaves out the objects of a collection of this name (io_scene_gltf2:
 # BLENDER_GLTF_SPECIAL_COLLECTION); it need not be in any scene.
 NOT_EXPORTED = "glTF_not_exported"

@@ -34,22 +34,6 @@ _LISTENERS: list = []
 FIT_CHECK_SIZE = 2048
 
 
-def solved_atlases(scene) -> dict:
-    """Source object name -> its atlas object, for atlas objects in the scene holding a solution."""
-    return {
-        o[names.PROP_SOURCE]: o
-        for o in scene.objects
-        if attributes.is_atlas(o) and names.RADIOSITY in o.data.attributes
-    }
-
-
-def uv_triangles(item: scene_model.MeshItem, uv_map: str) -> tuple[np.ndarray, np.ndarray]:
-    """UV (T, 3, 2) and world positions (T, 3, 3) of a scene model item's loop triangles (its
-    evaluated mesh); OvradError when it has no such UV map."""
-    data = item.data()
-    return data.bake_uvs(uv_map, item.name), data.corners
-
-
 def add_listener(listener) -> callable:
     """Call listener(result) after each image bake that finished, result a dict: `images`, one
     {object, path, uv_map, size, format, exposure, image} per object baked (exposure: a 16-bit
@@ -64,14 +48,15 @@ def add_listener(listener) -> callable:
 class Job:
     """One image to bake: its objects (one, or a shared atlas's), the UV map they bake through, the
     least size their made UV maps were packed for (0: none made; a shared atlas: its size), the
-    image's name and the {object} of its file path; read_job() fills in the size and each object's
-    UV and world triangles, bake_job() the objects baked."""
+    image's name and the {object} of its file path, whether it is a shared atlas; read_job() fills
+    in the size and each object's UV and world triangles, bake_job() the objects baked."""
 
     objects: list
     uv_map: str
     least: int
     image_name: str
     file_name: str
+    shared: bool = False
     size: int = 0
     triangles: list = field(default_factory=list)
     path: str = ""
@@ -238,7 +223,8 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
             try:
                 item = scene_model.object_item(obj, depsgraph) if job.least else model.item_of(obj)
                 item = item or scene_model.object_item(obj, depsgraph)
-                uv, world = uv_triangles(item, job.uv_map)
+                data = item.data()  # the evaluated mesh
+                uv, world = data.bake_uvs(job.uv_map, item.name), data.corners
             except OvradError as e:
                 not_baked.append(dict(object=obj.name, why=str(e)))
                 continue
@@ -249,8 +235,8 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
             return False
         if self.size:
             job.size = self.size
-        elif len(keep) > 1 or job.image_name != keep[0].name + names.IMAGE_SUFFIX:
-            job.size = job.least  # a shared atlas: the size its UV maps were packed for
+        elif job.shared:
+            job.size = job.least  # the size its UV maps were packed for
         else:
             obj, (uv, world) = keep[0], job.triangles[0]
             density = lightmap_uv.density_per_unit(context.scene, obj, self.texel_density)
@@ -313,7 +299,7 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
         not_baked: list[dict] = []
         try:
             targets = polls.selected_meshes(context)
-            solved = solved_atlases(context.scene)
+            solved = attributes.solved_atlases(context.scene)
             for o in targets:
                 if o.name not in solved:
                     not_baked.append(
@@ -344,7 +330,7 @@ class OVRAD_OT_bake_image(bpy.types.Operator):
             ]
             names_of = lightmap_atlas.atlas_names(len(atlases))
             jobs += [
-                Job(objs, lightmap_uv.LIGHTMAP_UV, size, name, name)
+                Job(objs, lightmap_uv.LIGHTMAP_UV, size, name, name, shared=True)
                 for (objs, size), name in zip(atlases, names_of, strict=True)
             ]
             jobs = [j for j in jobs if self.read_job(context, model, depsgraph, j, not_baked)]
