@@ -68,6 +68,7 @@ class ReceiverBake:
     vertex-colour bake picks): on the evaluated surface, at the limit position of a subdivided
     corner. A vertex with no copy left (bevelled, or cut away by a Boolean) bakes at the evaluated
     vertex nearest to it (Cycles leaves it black), and a loop with no copy takes its vertex's value.
+    A loose vertex (no face of the mesh uses it) lies on no surface and gets 0, as in Cycles' bake.
     """
 
     def __init__(self, obj, depsgraph, first_triangle: int, n_triangles: int, origins=None, data=None):
@@ -78,6 +79,7 @@ class ReceiverBake:
         orig = obj.data
         own = mesh_reader.loop_vertices(orig)
         self.n_vertices, self.n_loops = len(orig.vertices), len(orig.loops)
+        self.loose = np.setdiff1d(np.arange(self.n_vertices), own)
         if origins is None:
             if data is None:
                 data = mesh_reader.read_object(obj, depsgraph)
@@ -114,7 +116,7 @@ class ReceiverBake:
             angles = own_corner_angles(orig, obj.matrix_world)[loops]
             # A vertex with no copy left (bevelled, cut away by a Boolean) bakes at the evaluated
             # vertex nearest to it, as the mean of that vertex's corners.
-            missing = np.setdiff1d(np.arange(self.n_vertices), vertices)
+            missing = np.setdiff1d(np.setdiff1d(np.arange(self.n_vertices), vertices), self.loose)
             flat = data.triangles.ravel()
             if len(missing) and len(flat):
                 from scipy.spatial import cKDTree
@@ -187,11 +189,13 @@ class ReceiverBake:
         """(n, 3) per vertex (angle-weighted mean of its corners) or per face corner (loop) of the
         object's own mesh, from the values (m, 3) at the bake corners. Corners of triangles without
         area weigh nothing where a vertex has others (three points on a line have angles 0, 0 and
-        pi: the middle one would outweigh the faces around it). A vertex no corner stands for takes
-        the value of the nearest one that has some, a loop its vertex's value."""
+        pi: the middle one would outweigh the faces around it). A loose vertex gets 0; any other
+        vertex no corner stands for, the value of the nearest one that has some; a loop its vertex's
+        value."""
         vals = corner_values.reshape(-1, 3)
         w = self.angles * ~np.repeat(self.no_area, 3)[self.corners]
         point, has = self._means(self.vertices, self.n_vertices, w, vals)
+        has[self.loose] = True  # _means left them at 0
         if not has.all() and has.any():
             from scipy.spatial import cKDTree
 

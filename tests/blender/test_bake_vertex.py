@@ -261,6 +261,23 @@ def cut(obj):
     boolean.solver = "FLOAT" if "FLOAT" in solvers else "FAST"
 
 
+@pytest.mark.parametrize("modifiers", [(), SIMPLE_SPLIT], ids=["kept", "split"])
+def test_a_loose_vertex_bakes_black_as_in_cycles(ovrad, fresh_scene, modifiers):
+    """A vertex no face uses lies on no surface: it gets 0 (Cycles' own vertex bake leaves it black),
+    with or without modifiers that change the topology; every other vertex is lit."""
+    obj = lit_box(modifiers)
+    mesh = obj.data
+    mesh.vertices.add(2)
+    mesh.vertices[-2].co = (0.1, 0.2, 0.3)  # inside the box, where light arrives
+    mesh.vertices[-1].co = (0.99, 0.0, 0.0)  # next to a lit wall
+    mesh.update()
+    assert bpy.ops.ovrad.generate_atlas() == {"FINISHED"} and bpy.ops.ovrad.solve() == {"FINISHED"}
+    assert bpy.ops.ovrad.bake_vertex() == {"FINISHED"}
+    point = colors(mesh, "ovrad_radiance")[:, :3]
+    assert np.all(point[-2:] == 0.0)
+    assert np.all(point[:-2] > 0.0)
+
+
 @pytest.mark.versions
 @pytest.mark.parametrize("modify", [bevelled, cut], ids=["bevel", "boolean"])
 def test_a_vertex_without_a_copy_bakes_at_the_evaluated_vertex_nearest_it(ovrad, fresh_scene, modify):
@@ -348,6 +365,7 @@ def test_corners_of_a_triangle_without_area_do_not_darken_the_vertex_they_share(
     bake.positions = pos
     bake.angles = ovrad.operators.bake_vertex.corner_angles(pos[tri_verts]).ravel()
     bake.n_vertices, bake.n_loops = 5, 6
+    bake.loose = np.zeros(0, np.int64)  # every vertex has a face
     bake.no_area = np.array([False, True])
     corner = np.array([1.0, 1.0, 1.0, 0.2, 0.0, 0.4])[:, None] * np.ones(3)  # (corner, channel)
     got = bake.domain_values(corner, "POINT")[:, 0]
