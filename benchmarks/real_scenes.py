@@ -807,9 +807,25 @@ def score(reference: dict, values: np.ndarray) -> dict:
         m = (reference["object"] == k) & have
         if m.any():
             per_object[str(name)] = rel(m)
+    places = {}
+    for place, mask in room_places(reference["positions"], have).items():
+        if mask.any():
+            ratio = float(np.sum(values[mask]) / max(np.sum(ref[mask]), 1e-300))
+            places[place] = {"rel_rms": rel(mask), "ratio": ratio, "count": int(mask.sum())}
     return {
         "rel_rms": rel(have),
         "scored": int(have.sum()),
         "vertices": int(len(ref)),
         "per_object": per_object,
+        "places": places,
     }
+
+
+def room_places(positions: np.ndarray, have: np.ndarray, tolerance: float = 1e-4) -> dict:
+    """Masks of the scored vertices by where they sit in an axis-aligned room (the bounding box of
+    the scored vertices): "edge", on two of its faces (where a wall meets the floor, the ceiling or
+    another wall), "corner", on three; the rest are neither."""
+    p = np.asarray(positions, np.float64)
+    lo, hi = p[have].min(axis=0), p[have].max(axis=0)
+    faces = ((np.abs(p - lo) < tolerance) | (np.abs(p - hi) < tolerance)).sum(axis=1)
+    return {"edge": have & (faces == 2), "corner": have & (faces == 3)}

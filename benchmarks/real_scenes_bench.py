@@ -70,6 +70,11 @@ def run_scene(name: str, folder: Path, extra: list[str]) -> dict:
         reference_noise=ref["meta"]["relative_rms_noise"],
         patches=rep.get("patches", ""),
     )
+    # vertices where walls meet (two faces of the room's box) and in its corners (three): the
+    # error there and the baked light's mean over the reference's
+    for place, got in s["places"].items():
+        row.update({f"{place}_rel_rms": round(got["rel_rms"], 4), f"{place}_ratio": round(got["ratio"], 4)})
+        row[f"{place}_vertices"] = got["count"]
     return row
 
 

@@ -8,8 +8,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..geometry import tangent_frame
 from ..light.direct import DirectLight, direct_irradiance
-from ..overlap.queries import alpha_at
+from ..light.lamps import shadow_origin
+from ..overlap.queries import alpha_at, ray_hits
 
 INSIDE = 2e-5  # origins step this far (x scene extent) into their triangle, at most halfway to its centroid
 
@@ -25,7 +27,12 @@ class NearField:
     sky_seen (n,) bool: the patches whose near hits cast sky rays (radiosity.emission.sky_patches); None:
     every one, if the light has a sky. corner_size: a hit on a triangle whose longest edge is at
     most this x the hit's distance (with 256 gather rays; x sqrt(256 / rays) with others) takes its
-    direct light from the triangle's corners (CornerCache); 0: every near hit casts shadow rays."""
+    direct light from the triangle's corners (CornerCache); 0: every near hit casts shadow rays.
+    second_rays: the light that came by way of other surfaces is, instead of the patches' `indirect`,
+    the hit's reflectance x the irradiance a second gather of this many rays finds at the nodes of
+    a lattice over the hit's triangle (CornerCache), reading the patches where those rays land: a
+    patch's indirect light is its mean over its support, brighter than the light in a concave
+    corner or under clutter; 0: the patches' indirect light."""
 
     light: DirectLight
     indirect: np.ndarray
@@ -33,6 +40,7 @@ class NearField:
     reach: float = 1.0
     sky_seen: np.ndarray | None = None
     corner_size: float = 0.25
+    second_rays: int = 0
 
 
 def may_see_sky(alpha, seen: np.ndarray | None) -> np.ndarray | None:
@@ -76,6 +84,9 @@ LATTICE_REACH = 1.5
 
 MAX_DIVISIONS = 256  # a triangle side needing a finer lattice (over 33 k nodes) reads alpha at its hits
 
+SECOND_DIVISIONS = 64  # the second gather's lattice (NearField.second_rays) cuts an edge in at most this
+SECOND_CHUNK_RAYS = 1 << 16  # its rays per batch
+
 
 class CornerCache:
     """The gather's hits read from values kept at the nodes of a lattice over their triangle.
@@ -109,6 +120,7 @@ class CornerCache:
         near: NearField | None,
         corner_alpha: float = CORNER_ALPHA,
         rays: int = 256,
+        second_pattern: np.ndarray | None = None,
     ):
         self.problem, self.values, self.near = problem, values, near
         index, atlas = problem.index, problem.atlas
@@ -135,6 +147,16 @@ class CornerCache:
             self.light_nodes = LatticeValues(
                 self.frames, np.ones((2, T), np.int64), 3, np.float64, self._light
             )
+        self.second_nodes, self.second_pattern = None, second_pattern
+        if near is not None and near.second_rays > 0:
+            if second_pattern is None or len(second_pattern) != near.second_rays:
+                raise ValueError("a second gather needs its pattern of second_rays directions")
+            # a lattice as fine as the patch values' (at most SECOND_DIVISIONS cells an edge)
+            second = np.zeros((2, T), np.int64)
+            for back in (0, 1):
+                h = CORNER_ALPHA * smallest[index.sheet_of(tri, np.full(T, 1 - 2 * back))]
+                second[back] = np.clip(np.ceil(self.size / h), 1, SECOND_DIVISIONS)
+            self.second_nodes = LatticeValues(self.frames, second, 3, np.float64, self._second)
 
     def _values(self, tri, side, pts) -> np.ndarray:
         pts = inside(self.problem.index.surfaces, pts, tri)
@@ -152,6 +174,50 @@ class CornerCache:
                 alpha_at(problem.atlas, index, problem.contacts, pts, tri, side), near.sky_seen
             )
         return direct_irradiance(problem.emitter_rules, index.rays, near.light, pts, normals, sky_at)[0]
+
+    def _second(self, tri, side, pts) -> np.ndarray:
+        """Irradiance (k, 3) at nodes from a second gather: the far values (patches' reflected
+        radiosity and the emission the bake points do not sample) where its rays land, no near field."""
+        index = self.problem.index
+        pts = inside(index.surfaces, pts, tri)
+        nrm = index.charts.normals[tri] * side[:, None]
+        local = self.second_pattern
+        k = len(local)
+        eps = 1e-6 * index.surfaces.extent
+        out = np.empty((len(pts), 3))
+        step = max(1, SECOND_CHUNK_RAYS // k)
+        for s in range(0, len(pts), step):
+            sl = slice(s, s + step)
+            n = nrm[sl]
+            t_axis, b_axis = tangent_frame(n)
+            dirs = (
+                local[None, :, :1] * t_axis[:, None]
+                + local[None, :, 1:2] * b_axis[:, None]
+                + local[None, :, 2:] * n[:, None]
+            ).reshape(-1, 3)
+            origins = shadow_origin(np.repeat(pts[sl], k, axis=0), np.repeat(n, k, axis=0), dirs, eps)
+            hits = ray_hits(index, origins, dirs)
+            got = np.zeros((len(dirs), 3))
+            far = self.values_at(hits.points, hits.triangle, hits.side, hits.t).far
+            surfaces = index.surfaces
+            if surfaces.albedo is not None:
+                # a patch holds its mean albedo x its light: on a textured triangle the light it
+                # reflects takes the texture's detail, albedo(hit) / the triangle's mean (the second
+                # gather's rays land close, where a floor's checker cells are seen one by one)
+                tex = np.flatnonzero(surfaces.albedo.varies[hits.triangle])
+                if len(tex):
+                    t_tri = hits.triangle[tex]
+                    here = surfaces.reflectance_at(t_tri, np.take(hits.points, tex, axis=0))
+                    mean = surfaces.reflectance[t_tri]
+                    with np.errstate(divide="ignore", invalid="ignore"):
+                        far[tex] *= np.where(mean > 0, here / mean, 0.0)
+            got[hits.ray] = far
+            out[sl] = got.reshape(-1, k, 3).mean(axis=1)
+        return out
+
+    def indirect_at(self, points, triangles, sides) -> np.ndarray:
+        """The second gather's irradiance (k, 3) at points on triangles (k,), seen from sides (k,)."""
+        return self.second_nodes.at(points, triangles, sides)
 
     def light_at(self, points, triangles, sides) -> np.ndarray:
         """Near-field direct irradiance (k, 3) at points on triangles (k,), seen from sides (k,)."""
@@ -314,7 +380,8 @@ def _patch_values(problem, alpha, values, near: NearField | None) -> np.ndarray:
     out[:, :3] = alpha @ values
     out[:, 6] = alpha @ problem.atlas.radii
     if near is not None:
-        out[:, 3:6] = alpha @ (near.indirect + near.extra)
+        # with a second gather the near hits take the light of other surfaces from it, not the patches
+        out[:, 3:6] = alpha @ (near.extra if near.second_rays > 0 else near.indirect + near.extra)
         if near.light.sky is not None and near.sky_seen is not None:
             out[:, 7] = may_see_sky(alpha, near.sky_seen)
     return out

@@ -130,7 +130,13 @@ def _at_points(problem: Problem, request: BakeRequest, points, triangles, sides)
                     sky_samples=min(light.sky_samples, NEAR_SKY_SAMPLES),
                     area_jittered=True,
                 )
-                near = NearField(near_light, radiosity - first_shot - coeffs, coeffs - own, sky_seen=seen)
+                near = NearField(
+                    near_light,
+                    radiosity - first_shot - coeffs,
+                    coeffs - own,
+                    sky_seen=seen,
+                    second_rays=light.near_gather_rays,
+                )
             at = pts if gather_points is None else np.asarray(gather_points, np.float64).reshape(-1, 3)
             axis, spread = normals, None
             if gather_normals is not None:

@@ -32,6 +32,8 @@ class DirectLight:
     rays (emitters (T,) bool over surfaces.triangles), their emission scale, samples per point;
     gather_rays: final-gather rays per bake point for the indirect light (bake/gather.py), 0 = off;
     near_field: hits closer than a patch radius computed where they land (bake.lattice.NearField);
+    near_gather_rays: their light from other surfaces gathered again with this many rays (0: from
+    the patches; NearField.second_rays);
     sky: the world's light (light/sky.py), None = none; sky_samples: its directions (one fixed set);
     sky_patches (n,) bool: the patches where bake points and near gather hits cast sky rays, as
     the solve decided and stored them (radiosity.emission.bake_sky); None: decide from the problem."""
@@ -42,6 +44,7 @@ class DirectLight:
     samples: int = 64
     gather_rays: int = 0
     near_field: bool = False
+    near_gather_rays: int = 0
     sky: Sky | None = None
     sky_samples: int = 1024
     sky_patches: np.ndarray | None = None

@@ -72,6 +72,7 @@ def direct_light(
         settings.bake_samples,
         settings.gather_rays,
         near_field=settings.near_field,
+        near_gather_rays=settings.near_gather_rays,
         sky=sky if sky is not None and sky.emits else None,
         sky_samples=settings.bake_sky_samples,
         sky_patches=sky_patches,

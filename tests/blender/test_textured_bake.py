@@ -64,13 +64,18 @@ def test_baked_floor_follows_its_checker_texture(ovrad, run_blender, tmp_path):
     pure = okx & oky
     # triples along x: a vertex and its neighbours 0.1 m either side, all inside cells, the
     # neighbours of the other colour (a cell is 0.125 m: they lie in the cells either side);
-    # averaging both neighbours cancels the light's gradient
+    # averaging both neighbours cancels the light's gradient. Not at the floor's border, where the
+    # walls stand: there a vertex sees the wall's foot, lit by its own cell up close, so its light
+    # follows its cell's colour (the converged Cycles bake's ratios on the 29 triples touching the
+    # border: 0.84-1.21; on the others 0.95-1.09, its noise).
     key = {tuple(np.round(p[:2] * 10).astype(int)): i for i, p in enumerate(co)}
+    lo, hi = co[:, :2].min(axis=0), co[:, :2].max(axis=0)
+    border = np.any((np.abs(co[:, :2] - lo) < 1e-6) | (np.abs(co[:, :2] - hi) < 1e-6), axis=1)
     ratios = []
     for i in np.flatnonzero(pure):
         gx, gy = np.round(co[i, :2] * 10).astype(int)
         j, k = key.get((gx - 1, gy)), key.get((gx + 1, gy))
-        if j is None or k is None or not (pure[j] and pure[k]):
+        if j is None or k is None or not (pure[j] and pure[k]) or border[[i, j, k]].any():
             continue
         if np.allclose(albedo[j], albedo[i]) or not np.allclose(albedo[j], albedo[k]):
             continue
@@ -79,6 +84,6 @@ def test_baked_floor_follows_its_checker_texture(ovrad, run_blender, tmp_path):
     ratios = np.array(ratios)
     assert len(ratios) > 50, len(ratios)
     # the radiance ratio of neighbouring cells is their albedo ratio (red: 7.7 x between them):
-    # 200 triples within 1.4 %, median 0.2 %, measured
+    # 171 triples within 1.0 %, median 0.2 %, measured
     assert np.all(np.abs(ratios - 1.0) < 0.03), (ratios.min(), ratios.max())
     assert np.abs(np.median(ratios, axis=0) - 1.0).max() < 0.01

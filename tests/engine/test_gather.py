@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import scenes
+from ovrad_addon.bake import gather as gather_module
 from ovrad_addon.bake import lattice
 from ovrad_addon.bake.gather import (
     Gather,
@@ -103,8 +104,11 @@ def test_pattern_is_a_full_grid_of_cosine_strata():
     np.testing.assert_array_equal(hemisphere_pattern(64), hemisphere_pattern(64))
 
 
+@pytest.mark.parametrize("near_rays", [0, 16], ids=["patches", "second-gather"])
 @pytest.mark.parametrize("rays", [16, 64])
-def test_furnace_is_exact_at_faces_edges_and_corners(furnace, rays):
+def test_furnace_is_exact_at_faces_edges_and_corners(furnace, rays, near_rays):
+    """...with the near hits' light from other surfaces read off the patches or gathered again at
+    lattice nodes (NearField.second_rays): both give B = E / (1 - rho) in a furnace."""
     s, problem, state = furnace
     pts, tri = scenes.sample_surface(s, 1000, seed=4)
     # every triangle corner (cube corners, concave edges) and every edge midpoint
@@ -112,7 +116,8 @@ def test_furnace_is_exact_at_faces_edges_and_corners(furnace, rays):
     edge = 0.5 * (c + np.roll(c, -1, axis=1))
     pts = np.concatenate([pts, c.reshape(-1, 3), edge.reshape(-1, 3)])
     tri = np.concatenate([tri, np.repeat(np.arange(len(c)), 3), np.repeat(np.arange(len(c)), 3)])
-    light = direct_light(problem, (), SolveSettings(gather_rays=rays))
+    light = direct_light(problem, (), SolveSettings(gather_rays=rays, near_gather_rays=near_rays))
+    assert light.near_gather_rays == near_rays
     L = radiance_at(problem, BakeRequest(state.radiosity, state.first_shot, light), pts, tri, 1)
     # every ray from a point inside a closed room lands on it, and B = E / (1 - rho) = 20 pi there
     np.testing.assert_allclose(L, 2.0 / (1 - 0.9), rtol=1e-3)
@@ -492,18 +497,51 @@ def lamp_over_floor(block, seed: int):
     return problem, state, E, near, pts, tri, normals
 
 
-def test_near_field_does_not_depend_on_threads_or_chunks(block):
-    """Corner light is filled by whichever chunk asks first; the result must not depend on it (to
-    rounding: 1e-12 relative, as numpy's reductions and vector loops may round a value otherwise
-    in arrays of another shape, as the CPU's SIMD width decides; a node filled from other rays
-    would differ by the gather's noise, a percent)."""
+@pytest.mark.parametrize("second", [0, 16], ids=["patches", "second-gather"])
+def test_near_field_does_not_depend_on_threads_or_chunks(block, second):
+    """Corner light (and the second gather's irradiance at lattice nodes) is filled by whichever
+    chunk asks first; the result must not depend on it (to rounding: 1e-12 relative, as numpy's
+    reductions and vector loops may round a value otherwise in arrays of another shape, as the CPU's
+    SIMD width decides; a node filled from other rays would differ by the gather's noise, a percent)."""
     problem, state, E, near, pts, tri, normals = lamp_over_floor(block, seed=5)
+    near = replace(near, second_rays=second)
     one = gather_indirect(problem, Gather(state.radiosity, E, 64, near=near, workers=1), pts, normals, tri)
     many = gather_indirect(
         problem, Gather(state.radiosity, E, 64, near=near, chunk_rays=640, workers=2), pts, normals, tri
     )
     assert np.any(one > 0)
     np.testing.assert_allclose(many, one, rtol=1e-12, atol=1e-12 * one.max())
+
+
+def test_second_gather_nodes_hold_a_gather_of_the_far_values(block):
+    """With NearField.second_rays, a near hit's light from other surfaces is the irradiance at its
+    triangle's lattice nodes from a second gather that reads only the far values. At a triangle's
+    first corner the lattice gives that node's value alone: it equals an independent gather without
+    near field from the corner (the same directions, SECOND_SEED), to rounding. The near hits then
+    differ from the patches' indirect light (the floor beside the block is not its patches' mean)."""
+    problem, state, E, near, pts, tri, normals = lamp_over_floor(block, seed=11)
+    second = replace(near, second_rays=16)
+    shared: dict = {}
+    with_second = gather_indirect(
+        problem, Gather(state.radiosity, E, 64, near=second, corner_cache=shared), pts, normals, tri
+    )
+    (cache,) = shared.values()
+    assert cache.second_nodes is not None and cache.second_nodes.count > 0
+    floor = np.unique(tri)
+    corner = problem.surfaces.corners[floor, 0]
+    up = np.ones(len(floor), np.int64)
+    got = cache.indirect_at(corner, floor, up)
+    want = gather_indirect(
+        problem,
+        Gather(state.radiosity, E, 16, near=None, seed=gather_module.SECOND_SEED),
+        corner,
+        np.tile([0.0, 0.0, 1.0], (len(floor), 1)),
+        floor,
+    )
+    assert np.any(want > 0)  # the corners that see the lit block get its light
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12 * want.max())
+    patches = gather_indirect(problem, Gather(state.radiosity, E, 64, near=near), pts, normals, tri)
+    assert np.max(np.abs(with_second - patches)) > 1e-2 * patches.max()
 
 
 def test_calls_sharing_a_corner_cache_give_what_one_call_gives(block):
