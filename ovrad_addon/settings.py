@@ -158,8 +158,10 @@ class SolveSettings:
     # rays at the nodes of a lattice over their triangle, not the patches' mean over their support
     # (NearField.second_rays; 0: from the patches). Real-scenes set, every vertex, 0 / 16 rays:
     # doorway 1.62 / 1.31 % (vertices where walls meet +2.8 / +1.4 % bias, room corners +12.5 /
-    # +7.7 %), production room 6.84 / 6.27 % with 32; bake time +15-30 %. 32 and 64 rays gave
-    # what 16 gave within 0.01 points on the doorway.
+    # +7.7 %), textured 2.44 / 1.80 %, production room 6.84 / 6.22 %; whole batch +8-16 %. 32 and
+    # 64 rays gave what 16 gave within 0.01 points on the doorway. The Cornell box goes the other
+    # way: 1.60 % with 0, 1.75 / 1.72 / 1.64 / 1.63 % with 16 / 32 / 64 / 256 (its ceiling 2.9 % at
+    # 0 and 64 rays, 3.1 % at 16 and 32; its blocks 1.6 -> 2.2 % at any count).
     near_gather_rays: int = 16
     sky_samples: int = 256
     bake_sky_samples: int = 1024
