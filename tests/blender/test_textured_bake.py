@@ -71,17 +71,26 @@ def test_baked_floor_follows_its_checker_texture(ovrad, run_blender, tmp_path):
     key = {tuple(np.round(p[:2] * 10).astype(int)): i for i, p in enumerate(co)}
     lo, hi = co[:, :2].min(axis=0), co[:, :2].max(axis=0)
     border = np.any((np.abs(co[:, :2] - lo) < 1e-6) | (np.abs(co[:, :2] - hi) < 1e-6), axis=1)
-    ratios = []
+    ratios, at_border = [], []
     for i in np.flatnonzero(pure):
         gx, gy = np.round(co[i, :2] * 10).astype(int)
         j, k = key.get((gx - 1, gy)), key.get((gx + 1, gy))
-        if j is None or k is None or not (pure[j] and pure[k]) or border[[i, j, k]].any():
+        if j is None or k is None or not (pure[j] and pure[k]):
             continue
         if np.allclose(albedo[j], albedo[i]) or not np.allclose(albedo[j], albedo[k]):
             continue
         side = 0.5 * (L[j] + L[k])
-        ratios.append((L[i] / side) / (albedo[i] / albedo[j]))
+        ratio = (L[i] / side) / (albedo[i] / albedo[j])
+        if border[[i, j, k]].any():
+            at_border.append(ratio[0] > 1.0 if np.allclose(albedo[i], warm) else ratio[0] < 1.0)
+        else:
+            ratios.append(ratio)
     ratios = np.array(ratios)
+    # At the border a warm cell's vertex gets more red light than its blue neighbours (the wall's
+    # foot over it is lit by it): the converged Cycles bake shows it on 26 of the 29 triples, ovrad
+    # on 26 (the gather's near hits on the wall take their light from a second gather that sees
+    # the cells one by one); read off the patches' mean, 11 of 29.
+    assert len(at_border) > 20 and np.mean(at_border) >= 0.75, (len(at_border), np.sum(at_border))
     assert len(ratios) > 50, len(ratios)
     # the radiance ratio of neighbouring cells is their albedo ratio (red: 7.7 x between them):
     # 171 triples within 1.0 %, median 0.2 %, measured
