@@ -19,7 +19,8 @@ from ovrad_addon.bake.gather import (
     strata,
     unique_points,
 )
-from ovrad_addon.bake.lattice import CornerCache, LatticeValues, NearField, TriangleFrames, inside
+from ovrad_addon.bake.lattice import CornerCache, NearField, inside
+from ovrad_addon.bake.nodes import LatticeValues, TriangleFrames
 from ovrad_addon.bake.points import BakeRequest, irradiance_at, radiance_at
 from ovrad_addon.errors import OvradError
 from ovrad_addon.generate.build import build_atlas
