@@ -92,7 +92,7 @@ SECOND_CHUNK_RAYS = 1 << 16  # its rays per batch
 class CornerCache:
     """The gather's hits read from values kept at the nodes of a lattice over their triangle.
 
-    Two things are computed once per lattice node (stepped a hair inside the triangle, as bake
+    Three things are computed once per lattice node (stepped a hair inside the triangle, as bake
     points are) and interpolated linearly across the lattice's cells:
     - alpha-weighted patch values (HitValues), on a lattice over each triangle side whose spacing is
       at most corner_alpha x the smallest patch radius of the side's sheet: alpha varies on the
@@ -108,6 +108,9 @@ class CornerCache:
       rad apart), so the gather does not resolve light inside it. (test_gather.py: on a floor in
       4.4 cm triangles beside a 4 cm shadow band, 0.25 x the distance moved the light gathered by
       4 096 rays by under 0.2 %; 0.5 x smeared the band, up to 2.7 %.)
+    - with NearField.second_rays, the irradiance a second gather finds at the node (far values only,
+      second_pattern's directions in the node's tangent frame), on a lattice as fine as the patch
+      values' but at most SECOND_DIVISIONS cuts an edge: the near hits' light from other surfaces.
     Other near hits (a large triangle seen close: the floor at an object's foot) cast shadow rays
     where they land; a side whose lattice would be finer than MAX_DIVISIONS takes alpha at each hit.
     Values depend only on the node, never on which thread or bake point asked first: no noise, the
