@@ -45,11 +45,10 @@ from scipy.stats import qmc
 
 from ..geometry import tangent_frame
 from ..light.direct import direct_irradiance
-from ..light.lamps import shadow_origin
 from ..overlap.queries import ray_hits
 from ..parallel import WORKERS, threaded
 from ..settings import MAX_GATHER_RAYS
-from .lattice import CORNER_ALPHA, CornerCache, NearField, inside
+from .lattice import CORNER_ALPHA, CornerCache, NearField, inside, pattern_rays
 
 GATHER_SEED = 3  # the fixed scrambling of the pattern: any seed, but always the same
 SECOND_SEED = 5  # the second gather's (NearField.second_rays), other directions than the first's
@@ -179,14 +178,7 @@ def gather_indirect(problem, gather: Gather, points, normals, triangles=None, sp
 
     def chunk(k: int):
         sl = slice(starts[k], min(m, starts[k] + step))
-        n = nrm[sl]
-        dirs = (
-            local[None, :, :1] * t_all[sl, None]
-            + local[None, :, 1:2] * b_all[sl, None]
-            + local[None, :, 2:] * n[:, None]
-        )
-        dirs = dirs.reshape(-1, 3)
-        origins = shadow_origin(np.repeat(pts[sl], rays, axis=0), np.repeat(n, rays, axis=0), dirs, eps)
+        origins, dirs = pattern_rays(pts[sl], nrm[sl], local, eps, (t_all[sl], b_all[sl]))
         hits = ray_hits(index, origins, dirs)
         hit, t, at, tri, side = hits.ray, hits.t, hits.points, hits.triangle, hits.side
         got = np.zeros((len(dirs), 3))

@@ -12,6 +12,7 @@ from ..geometry import tangent_frame
 from ..light.direct import DirectLight, direct_irradiance
 from ..light.lamps import shadow_origin
 from ..overlap.queries import alpha_at, ray_hits
+from ..scene.surfaces import per_albedo
 from .nodes import LatticeValues, TriangleFrames
 
 INSIDE = 2e-5  # origins step this far (x scene extent) into their triangle, at most halfway to its centroid
@@ -42,6 +43,22 @@ class NearField:
     sky_seen: np.ndarray | None = None
     corner_size: float = 0.25
     second_rays: int = 0
+
+
+def pattern_rays(points, normals, local, eps: float, frames=None) -> tuple[np.ndarray, np.ndarray]:
+    """Origins and directions (m k, 3) of the k rays of a gather pattern (local (k, 3), z the normal)
+    from each of m points with unit normals (m, 3), point by point: the pattern turned into each
+    point's tangent frame (frames: its (tangent, bitangent) (m, 3) each, when already known), the
+    origins just off the surface along the rays (shadow_origin)."""
+    n = np.asarray(normals, np.float64)
+    t_axis, b_axis = tangent_frame(n) if frames is None else frames
+    k = len(local)
+    dirs = (
+        local[None, :, :1] * t_axis[:, None]
+        + local[None, :, 1:2] * b_axis[:, None]
+        + local[None, :, 2:] * n[:, None]
+    ).reshape(-1, 3)
+    return shadow_origin(np.repeat(points, k, axis=0), np.repeat(n, k, axis=0), dirs, eps), dirs
 
 
 def may_see_sky(alpha, seen: np.ndarray | None) -> np.ndarray | None:
@@ -135,13 +152,18 @@ class CornerCache:
         smallest = np.full(len(index.sheet_chart) + 1, np.inf)  # last: no sheet (-1)
         np.minimum.at(smallest, atlas.sheet, atlas.radii)
         self.alpha_size = corner_alpha * smallest if corner_alpha > 0 else np.full_like(smallest, -1.0)
+        # (back, triangle) sheets of each triangle side, and the cuts a lattice spaced at most `h`
+        # per sheet needs along the triangle's longest edge (a side without patches, h = inf: 0)
         tri = np.arange(T)
+        sheets = np.stack([index.sheet_of(tri, np.full(T, 1 - 2 * back)) for back in (0, 1)])
+
+        def cuts(h: np.ndarray) -> np.ndarray:
+            return np.ceil(self.size[None, :] / h[sheets])
+
         divisions = np.zeros((2, T), np.int64)  # (back, triangle); 0: alpha at each hit
         if corner_alpha > 0:
-            for back in (0, 1):
-                h = self.alpha_size[index.sheet_of(tri, np.full(T, 1 - 2 * back))]
-                n = np.ceil(self.size / h)  # a side without patches (h = inf): one cell
-                divisions[back] = np.where(n <= MAX_DIVISIONS, np.maximum(n, 1), 0)
+            n = cuts(self.alpha_size)
+            divisions[:] = np.where(n <= MAX_DIVISIONS, np.maximum(n, 1), 0)
         self.frames = TriangleFrames(c)
         self.patch_nodes = LatticeValues(self.frames, divisions, 8, np.float32, self._values)
         # the spacing of the gather's rays where they land goes as 1 / sqrt(rays)
@@ -156,10 +178,7 @@ class CornerCache:
             if second_pattern is None or len(second_pattern) != near.second_rays:
                 raise ValueError("a second gather needs its pattern of second_rays directions")
             # a lattice as fine as the patch values' (at most SECOND_DIVISIONS cells an edge)
-            second = np.zeros((2, T), np.int64)
-            for back in (0, 1):
-                h = CORNER_ALPHA * smallest[index.sheet_of(tri, np.full(T, 1 - 2 * back))]
-                second[back] = np.clip(np.ceil(self.size / h), 1, SECOND_DIVISIONS)
+            second = np.clip(cuts(CORNER_ALPHA * smallest), 1, SECOND_DIVISIONS).astype(np.int64)
             self.second_nodes = LatticeValues(self.frames, second, 3, np.float64, self._second)
 
     def _values(self, tri, side, pts) -> np.ndarray:
@@ -183,38 +202,28 @@ class CornerCache:
         """Irradiance (k, 3) at nodes from a second gather: the far values (patches' reflected
         radiosity and the emission the bake points do not sample) where its rays land, no near field."""
         index = self.problem.index
-        pts = inside(index.surfaces, pts, tri)
+        surfaces = index.surfaces
+        pts = inside(surfaces, pts, tri)
         nrm = index.charts.normals[tri] * side[:, None]
         local = self.second_pattern
         k = len(local)
-        eps = 1e-6 * index.surfaces.extent
+        eps = 1e-6 * surfaces.extent
         out = np.empty((len(pts), 3))
         step = max(1, SECOND_CHUNK_RAYS // k)
         for s in range(0, len(pts), step):
             sl = slice(s, s + step)
-            n = nrm[sl]
-            t_axis, b_axis = tangent_frame(n)
-            dirs = (
-                local[None, :, :1] * t_axis[:, None]
-                + local[None, :, 1:2] * b_axis[:, None]
-                + local[None, :, 2:] * n[:, None]
-            ).reshape(-1, 3)
-            origins = shadow_origin(np.repeat(pts[sl], k, axis=0), np.repeat(n, k, axis=0), dirs, eps)
+            origins, dirs = pattern_rays(pts[sl], nrm[sl], local, eps)
             hits = ray_hits(index, origins, dirs)
             got = np.zeros((len(dirs), 3))
             far = self.values_at(hits.points, hits.triangle, hits.side, hits.t).far
-            surfaces = index.surfaces
-            if surfaces.albedo is not None:
-                # a patch holds its mean albedo x its light: on a textured triangle the light it
-                # reflects takes the texture's detail, albedo(hit) / the triangle's mean (the second
-                # gather's rays land close, where a floor's checker cells are seen one by one)
-                tex = np.flatnonzero(surfaces.albedo.varies[hits.triangle])
-                if len(tex):
-                    t_tri = hits.triangle[tex]
-                    here = surfaces.reflectance_at(t_tri, np.take(hits.points, tex, axis=0))
-                    mean = surfaces.reflectance[t_tri]
-                    with np.errstate(divide="ignore", invalid="ignore"):
-                        far[tex] *= np.where(mean > 0, here / mean, 0.0)
+            # a patch holds its mean albedo x its light: on a textured triangle the light it reflects
+            # takes the texture's detail, albedo(hit) / the triangle's mean (the second gather's rays
+            # land close, where a floor's checker cells are seen one by one)
+            tex = np.flatnonzero(surfaces.textured(hits.triangle))
+            if len(tex):
+                t_tri = hits.triangle[tex]
+                here = surfaces.reflectance_at(t_tri, np.take(hits.points, tex, axis=0))
+                far[tex] *= per_albedo(here, surfaces.reflectance[t_tri])
             got[hits.ray] = far
             out[sl] = got.reshape(-1, k, 3).mean(axis=1)
         return out

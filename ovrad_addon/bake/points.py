@@ -13,7 +13,7 @@ from ..overlap.queries import alpha_at, reconstruct
 from ..radiosity.emission import bake_sky, own_emission, patch_emission
 from ..radiosity.first_shot import emitter_sample_count
 from ..radiosity.problem import Problem
-from ..scene.surfaces import Surfaces
+from ..scene.surfaces import per_albedo
 from .gather import (
     GATHER_SEED,
     NEAR_LIGHT_SAMPLES,
@@ -176,12 +176,12 @@ def radiance_at(problem: Problem, request: BakeRequest, points, triangles, sides
     surfaces = problem.surfaces
     albedo = surfaces.reflectance_at(tri, np.asarray(points, np.float64).reshape(-1, 3))
     out = reconstruct(a, coeffs)
-    textured = _textured(surfaces, tri)
+    textured = surfaces.textured(tri)
     if np.any(textured):
         # a patch holds its mean albedo x its light: the reflected light the patches reconstruct
         # on a textured triangle takes the texture's detail, as albedo(M) / the triangle's mean
         reflected = _reflected(problem, request.light, a[textured], coeffs)
-        gain = _per_albedo(albedo[textured], surfaces.reflectance[tri[textured]])
+        gain = per_albedo(albedo[textured], surfaces.reflectance[tri[textured]])
         out[textured] += reflected * (gain - 1.0)
     if H is not None:
         out += albedo * H
@@ -196,26 +196,13 @@ def _reflected(problem: Problem, light: DirectLight | None, a, coeffs: np.ndarra
     )
 
 
-def _per_albedo(values: np.ndarray, rho: np.ndarray) -> np.ndarray:
-    """values / rho where the albedo rho > 0, else 0."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(rho > 0, values / rho, 0.0)
-
-
-def _textured(surfaces: Surfaces, triangles: np.ndarray) -> np.ndarray:
-    """(m,) bool: which of the triangles have an albedo texture."""
-    if surfaces.albedo is None:
-        return np.zeros(len(triangles), bool)
-    return surfaces.albedo.varies[triangles]
-
-
 def irradiance_at(problem: Problem, request: BakeRequest, points, triangles, sides=1) -> np.ndarray:
     """Light arriving at surface points without the surface's albedo: H / pi (m, 3), in the units
     of radiance (a white surface's radiance), from B(M) - E(M) = rho(M) H(M); 0 where rho is 0
     (direct light at the points where it is split off, as in radiance_at). On a textured triangle
     the patches' reflected light is divided by the triangle's mean albedo, what they hold."""
     tri, a, coeffs, H = _at_points(problem, request, points, triangles, sides)
-    out = _per_albedo(_reflected(problem, request.light, a, coeffs), problem.surfaces.reflectance[tri])
+    out = per_albedo(_reflected(problem, request.light, a, coeffs), problem.surfaces.reflectance[tri])
     if H is not None:
         out += H
     return out / np.pi

@@ -108,6 +108,12 @@ class Surfaces:
             return self.reflectance[tri]
         return albedo_at(self.albedo, self.reflectance, self.corners, tri, points)
 
+    def textured(self, triangles) -> np.ndarray:
+        """(m,) bool: which of the triangles (m,) have an albedo texture."""
+        if self.albedo is None:
+            return np.zeros(len(triangles), bool)
+        return self.albedo.varies[triangles]
+
     def opacity_at(self, triangles, points) -> np.ndarray:
         """Alpha (m,) at surface points (m, 3) on triangles (m,): 1 on opaque surfaces."""
         tri = np.asarray(triangles, np.int64)
@@ -261,3 +267,10 @@ def find_charts(surfaces: Surfaces, crease_angle_deg: float) -> Charts:
     chart_obj = np.zeros(len(uniq), np.int64)
     chart_obj[chart[valid]] = surfaces.object_index[valid]
     return Charts(chart, closed_obj[chart_obj], areas, normals)
+
+
+def per_albedo(values: np.ndarray, rho: np.ndarray) -> np.ndarray:
+    """values / rho where the albedo rho > 0, else 0 (a texture's detail: albedo at a point over its
+    triangle's mean)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(rho > 0, values / rho, 0.0)
