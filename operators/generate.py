@@ -9,7 +9,7 @@ import numpy as np
 from bpy.props import EnumProperty
 
 from ..ovrad_addon import OvradError, build_atlas_and_overlaps, keep, object_keys
-from . import attributes, display, polls, properties, scene_io, scene_model
+from . import attributes, display, engine_settings, polls, scene_io, scene_model
 from .window import progress_bar
 
 
@@ -43,7 +43,7 @@ class OVRAD_OT_generate_atlas(bpy.types.Operator):
             depsgraph = context.evaluated_depsgraph_get()
             model = scene_model.read_model(depsgraph, scene)
             meshes = scene_io.read_scene(depsgraph, selected, model.others(selected), model)
-            settings = properties.atlas_settings(scene.ovrad, meshes.objects)
+            settings = engine_settings.atlas_settings(scene.ovrad, meshes.objects)
             with progress_bar(context) as progress:
                 built = build_atlas_and_overlaps(meshes.surfaces, settings, progress=progress)
             atlas, C, quadrature, flags = built

@@ -1,5 +1,5 @@
-"""ovrad's Blender properties (scene settings, per-object overrides) and their conversion to the engine's
-frozen settings (AtlasSettings, SolveSettings)."""
+"""ovrad's Blender properties: scene settings and per-object overrides (their conversion to the
+engine's frozen settings: engine_settings.py)."""
 
 from __future__ import annotations
 
@@ -372,38 +372,6 @@ class OVRAD_PG_object(bpy.types.PropertyGroup):
         max=1000.0,
         soft_min=0.1,
         soft_max=10.0,
-    )
-
-
-def atlas_settings(props: OVRAD_PG_settings, objects) -> AtlasSettings:
-    """The frozen engine settings for `objects` (in the order of the surfaces' object index)."""
-    per_object = tuple(
-        ObjectSettings(density=o.ovrad.density, sides=o.ovrad.sides)
-        if hasattr(o, "ovrad")
-        else ObjectSettings()
-        for o in objects
-    )
-    return AtlasSettings(
-        patch_size=props.patch_size if props.size_mode == "SIZE" else None,
-        patch_count=props.patch_count,
-        overlap=props.overlap,
-        beta=props.beta,
-        shapes=props.shapes,
-        max_patches=props.max_patches,
-        objects=per_object,
-    )
-
-
-def solve_settings(props: OVRAD_PG_settings) -> SolveSettings:
-    """The frozen engine settings of a solve."""
-    return SolveSettings(
-        tolerance=props.solve_tolerance,
-        rule=props.solve_rule,
-        rays_per_point=props.rays_per_point,
-        min_rays=props.min_rays,
-        max_rays=props.max_rays,
-        cluster_angle=props.cluster_angle,
-        gather_rays=props.gather_rays,
     )
 
 

@@ -26,7 +26,7 @@ from ..ovrad_addon import (
     overlaps,
     refine,
 )
-from . import attributes, display, polls, properties, solve_inputs
+from . import attributes, display, engine_settings, polls, solve_inputs
 from .window import progress_bar
 
 BASE_RADIUS = "ovrad_base_radius"  # object property: the median radius the atlas was generated with
@@ -54,7 +54,7 @@ def refine_scene(context) -> tuple[int, int, int]:
     index = both_sides_index(inputs.surfaces, "auto", atlas)
     atlas = attach_sheets(atlas, index)
     B = np.pi * np.concatenate(radiance).astype(np.float64)
-    settings = properties.atlas_settings(scene.ovrad, inputs.sources)
+    settings = engine_settings.atlas_settings(scene.ovrad, inputs.sources)
     crease = settings.crease_angle
     receivers = [k for k in inputs.kept if k.start < count]  # the environment's block is not needed
     # the stored atlas's C as a solve reads it (the kept blocks' own quadrature)

@@ -20,7 +20,7 @@ from ..ovrad_addon import (
     hasher,
     names,
 )
-from . import attributes, environment, properties, scene_io, scene_model
+from . import attributes, engine_settings, environment, scene_io, scene_model
 
 
 @dataclass
@@ -182,7 +182,7 @@ def read_inputs(
         parts.append(replace(a, source_object=np.full(len(a), i, np.int64)))
     receivers = Atlas.concatenate(parts)
     warnings += meshes.warnings
-    base = properties.atlas_settings(scene.ovrad, meshes.objects)
+    base = engine_settings.atlas_settings(scene.ovrad, meshes.objects)
     env = environment.plan(scene, meshes.surfaces, len(sources), receivers, base, need_light, warnings)
     surfaces, atlas = meshes.surfaces, receivers
     atlas_names, counts = [o.name for o, _ in pairs], [len(p) for p in parts]
@@ -201,7 +201,7 @@ def read_inputs(
         surfaces=surfaces,
         atlas=atlas,
         lamps=lamps,
-        settings=settings or properties.solve_settings(scene.ovrad),
+        settings=settings or engine_settings.solve_settings(scene.ovrad),
         atlas_names=atlas_names,
         counts=counts,
         sources=sources,
