@@ -248,11 +248,18 @@ def _near_values(problem, near: NearField, cache, points, triangles, sides, t, s
     if len(exact):
         tri = triangles[exact]
         normals = np.take(index.charts.normals, tri, axis=0) * sides[exact, None]
-        sky_at = None if sky is None else sky[exact]
+        sky_at = None if sky is None or cache.sky_nodes else sky[exact]
         at = np.take(pts, exact, axis=0)
-        H[exact] = direct_irradiance(problem.emitter_rules, index.rays, near.light, at, normals, sky_at)[0]
+        H[exact] = direct_irradiance(problem.emitter_rules, index.rays, cache.hit_light, at, normals, sky_at)[
+            0
+        ]
     if cache.second_nodes is not None:
-        H += cache.indirect_at(points, triangles, sides) * covered[:, None]
+        indirect, sky_light = cache.second_at(points, triangles, sides)
+        H += indirect * covered[:, None]
+        if cache.sky_nodes and len(exact):
+            # the sky's light at the exact hits from the lattice (the small ones have it from corners)
+            lit = exact if sky is None else exact[sky[exact]]
+            H[lit] += sky_light[lit]
     return surfaces.reflectance_at(triangles, pts) * H
 
 

@@ -4,7 +4,7 @@ demand and interpolated; the near-field policy."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -34,7 +34,8 @@ class NearField:
     the hit's reflectance x the irradiance a second gather of this many rays finds at the nodes of
     a lattice over the hit's triangle (CornerCache), reading the patches where those rays land: a
     patch's indirect light is its mean over its support, brighter than the light in a concave
-    corner or under clutter; 0: the patches' indirect light."""
+    corner or under clutter; 0: the patches' indirect light. sky_nodes: with a second gather, the
+    near hits take the sky's direct light from its lattice (CornerCache); False: cast where they land."""
 
     light: DirectLight
     indirect: np.ndarray
@@ -43,6 +44,7 @@ class NearField:
     sky_seen: np.ndarray | None = None
     corner_size: float = 0.25
     second_rays: int = 0
+    sky_nodes: bool = True
 
 
 def pattern_rays(points, normals, local, eps: float, frames=None) -> tuple[np.ndarray, np.ndarray]:
@@ -127,7 +129,11 @@ class CornerCache:
       4 096 rays by under 0.2 %; 0.5 x smeared the band, up to 2.7 %.)
     - with NearField.second_rays, the irradiance a second gather finds at the node (far values only,
       second_pattern's directions in the node's tangent frame), on a lattice as fine as the patch
-      values' but at most SECOND_DIVISIONS cuts an edge: the near hits' light from other surfaces.
+      values' but at most SECOND_DIVISIONS cuts an edge: the near hits' light from other surfaces;
+      and on the same lattice the sky's direct light at the node (the near field's sky rule): a
+      near hit on a large triangle then casts shadow rays to the lamps and emitters only. The sky
+      is soft, lit by every direction, and its rule casts a hundred or more rays a point: at every
+      near hit that was most of a sky-lit bake's rays (foliage's lightmaps: 268 of 471 M).
     Other near hits (a large triangle seen close: the floor at an object's foot) cast shadow rays
     where they land; a side whose lattice would be finer than MAX_DIVISIONS takes alpha at each hit.
     Values depend only on the node, never on which thread or bake point asked first: no noise, the
@@ -179,36 +185,52 @@ class CornerCache:
                 raise ValueError("a second gather needs its pattern of second_rays directions")
             # a lattice as fine as the patch values' (at most SECOND_DIVISIONS cells an edge)
             second = np.clip(cuts(CORNER_ALPHA * smallest), 1, SECOND_DIVISIONS).astype(np.int64)
-            self.second_nodes = LatticeValues(self.frames, second, 3, np.float64, self._second)
+            self.second_nodes = LatticeValues(self.frames, second, 6, np.float64, self._second)
+        # the near hits' sky from the second gather's lattice; their other direct light where they land
+        self.sky_nodes = (
+            self.second_nodes is not None
+            and near.sky_nodes
+            and near.light.sky is not None
+            and near.light.sky.emits
+        )
+        self.hit_light = None if near is None else near.light
+        if self.sky_nodes:
+            self.hit_light = replace(near.light, sky=None)
 
     def _values(self, tri, side, pts) -> np.ndarray:
         pts = inside(self.problem.index.surfaces, pts, tri)
         a = alpha_at(self.problem.atlas, self.problem.index, self.problem.contacts, pts, tri, side)
         return _patch_values(self.problem, a, self.values, self.near)
 
-    def _light(self, tri, side, pts) -> np.ndarray:
+    def _light(self, tri, side, pts, light: DirectLight | None = None) -> np.ndarray:
+        """The near field's direct irradiance (k, 3) at nodes (light: another rule than its own)."""
         problem, near = self.problem, self.near
+        light = near.light if light is None else light
         index = problem.index
         pts = inside(index.surfaces, pts, tri)
         normals = index.charts.normals[tri] * side[:, None]
         sky_at = None
-        if near.light.sky is not None and near.sky_seen is not None:
+        if light.sky is not None and near.sky_seen is not None:
             sky_at = may_see_sky(
                 alpha_at(problem.atlas, index, problem.contacts, pts, tri, side), near.sky_seen
             )
-        return direct_irradiance(problem.emitter_rules, index.rays, near.light, pts, normals, sky_at)[0]
+        return direct_irradiance(problem.emitter_rules, index.rays, light, pts, normals, sky_at)[0]
 
     def _second(self, tri, side, pts) -> np.ndarray:
-        """Irradiance (k, 3) at nodes from a second gather: the far values (patches' reflected
-        radiosity and the emission the bake points do not sample) where its rays land, no near field."""
+        """(k, 6) at nodes: the irradiance from a second gather, the far values (patches' reflected
+        radiosity and the emission the bake points do not sample) where its rays land, no near
+        field; then the sky's direct irradiance (0 when the near hits take it where they land)."""
         index = self.problem.index
         surfaces = index.surfaces
+        out = np.zeros((len(pts), 6))
+        if self.sky_nodes:
+            sky = replace(self.near.light, lamps=(), emitters=None)
+            out[:, 3:] = self._light(tri, side, pts, sky)
         pts = inside(surfaces, pts, tri)
         nrm = index.charts.normals[tri] * side[:, None]
         local = self.second_pattern
         k = len(local)
         eps = 1e-6 * surfaces.extent
-        out = np.empty((len(pts), 3))
         step = max(1, SECOND_CHUNK_RAYS // k)
         for s in range(0, len(pts), step):
             sl = slice(s, s + step)
@@ -225,12 +247,18 @@ class CornerCache:
                 here = surfaces.reflectance_at(t_tri, np.take(hits.points, tex, axis=0))
                 far[tex] *= per_albedo(here, surfaces.reflectance[t_tri])
             got[hits.ray] = far
-            out[sl] = got.reshape(-1, k, 3).mean(axis=1)
+            out[sl, :3] = got.reshape(-1, k, 3).mean(axis=1)
         return out
+
+    def second_at(self, points, triangles, sides) -> tuple[np.ndarray, np.ndarray]:
+        """The second gather's irradiance and the sky's direct irradiance (k, 3 each; the sky 0 unless
+        sky_nodes) at points on triangles (k,), seen from sides (k,)."""
+        v = self.second_nodes.at(points, triangles, sides)
+        return v[:, :3], v[:, 3:]
 
     def indirect_at(self, points, triangles, sides) -> np.ndarray:
         """The second gather's irradiance (k, 3) at points on triangles (k,), seen from sides (k,)."""
-        return self.second_nodes.at(points, triangles, sides)
+        return self.second_at(points, triangles, sides)[0]
 
     def light_at(self, points, triangles, sides) -> np.ndarray:
         """Near-field direct irradiance (k, 3) at points on triangles (k,), seen from sides (k,)."""

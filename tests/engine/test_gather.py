@@ -24,8 +24,9 @@ from ovrad_addon.bake.nodes import LatticeValues, TriangleFrames
 from ovrad_addon.bake.points import BakeRequest, irradiance_at, radiance_at
 from ovrad_addon.errors import OvradError
 from ovrad_addon.generate.build import build_atlas
-from ovrad_addon.light.direct import triangle_normals
+from ovrad_addon.light.direct import direct_irradiance, triangle_normals
 from ovrad_addon.light.lamps import Lamp
+from ovrad_addon.light.sky import Sky
 from ovrad_addon.radiosity.emission import patch_emission, sampled_emission
 from ovrad_addon.radiosity.first_shot import direct_light, solve
 from ovrad_addon.radiosity.problem import prepare
@@ -625,3 +626,57 @@ def test_lattice_near_a_contact_matches_alpha_at_every_hit(block, monkeypatch):
     monkeypatch.setattr(lattice, "LATTICE_REACH", 0.0)
     smeared = gather_indirect(problem, Gather(state.radiosity, zero, 256), P, N)[:, 0]
     assert np.abs(smeared - exact).max() > 0.03 * scale
+
+
+@pytest.fixture(scope="module")
+def sky_block():
+    """The block on its floor under a constant sky (no lamp), solved, and its near field with a
+    second gather."""
+    s, problem = block_on_floor()
+    sky = Sky((0.6, 0.6, 0.6))
+    state = solve(problem, sky=sky)
+    light = direct_light(problem, (), SolveSettings(), sky=sky)
+    E = patch_emission(problem)
+    near = NearField(light, state.radiosity - state.first_shot - E, np.zeros_like(E), second_rays=16)
+    return s, problem, state, E, near
+
+
+def test_near_hits_take_the_skys_light_from_the_second_gathers_lattice(sky_block):
+    """With a second gather, a near hit's sky light is read from the lattice of that gather, whose
+    nodes hold the sky's direct irradiance as direct_irradiance gives it there: at a triangle's
+    first corner, the sky-only rule at the corner stepped inside, to rounding. The floor round the
+    block's foot (its gather rays land on the block's sides close by) gets what near hits casting
+    sky rays where they land give, within 1 % (measured 0.04 % RMS; 24 % off with no sky at
+    the near hits)."""
+    s, problem, state, E, near = sky_block
+    rng = np.random.default_rng(3)
+    pts = np.column_stack([rng.uniform(-0.3, 1.3, 400), rng.uniform(-0.3, 1.3, 400), np.zeros(400)])
+    pts = pts[(pts[:, 0] < -0.01) | (pts[:, 0] > 1.01) | (pts[:, 1] < -0.01) | (pts[:, 1] > 1.01)]
+    tri = floor_triangles(s, pts)
+    normals = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
+    shared: dict = {}
+    lattice = gather_indirect(
+        problem, Gather(state.radiosity, E, 64, near=near, corner_cache=shared), pts, normals, tri
+    )
+    exact = gather_indirect(
+        problem, Gather(state.radiosity, E, 64, near=replace(near, sky_nodes=False)), pts, normals, tri
+    )
+    (cache,) = shared.values()
+    assert cache.sky_nodes and not np.any(cache.hit_light.sky)
+    floor = np.unique(tri)
+    corner = problem.surfaces.corners[floor, 0]
+    up = np.ones(len(floor), np.int64)
+    _, sky_light = cache.second_at(corner, floor, up)
+    sky_only = replace(near.light, lamps=(), emitters=None)
+    want = direct_irradiance(
+        problem.emitter_rules,
+        problem.index.rays,
+        sky_only,
+        inside(s, corner, floor),
+        np.tile([0.0, 0.0, 1.0], (len(floor), 1)),
+    )[0]
+    np.testing.assert_allclose(sky_light, want, rtol=1e-12, atol=1e-12 * want.max())
+    off = np.any((corner[:, :2] < 0.0) | (corner[:, :2] > 1.0), axis=1)  # off the block's footprint
+    assert off.sum() >= 3 and np.all(want[off] > 0.2 * np.pi * 0.6)  # the sky less what the block hides
+    rel = np.sqrt(np.sum((lattice - exact) ** 2) / np.sum(exact**2))
+    assert rel < 0.01, rel
