@@ -28,7 +28,7 @@ from functools import partial
 
 import numpy as np
 
-from . import compat
+from . import compat, principled
 from .colour_math import MIX_BLENDS, CurvesTable, bright_contrast, gamma, hue_saturation_value, mix_colours
 from .colour_terms import (
     ColourTerm,
@@ -81,6 +81,7 @@ class MaterialLight:
     tint: np.ndarray = field(default_factory=lambda: np.ones(3))  # a factor on texture x paint
     emitted: ColourTerm | None = None  # an emission colour from a texture or paint (x strength)
     alpha: MaterialAlpha = field(default_factory=lambda: MaterialAlpha())  # the share that is there
+    bake_weight: float = 1.0  # the share of its diffuse light a bake reports (principled.bake_weight)
 
 
 def upstream(socket):
@@ -214,6 +215,7 @@ def read_material(material, warnings: list[str]) -> MaterialLight:
     node, cut = _past_transparent(_surface_shader(material), material, warnings)
     kind = node.bl_idname if node is not None else None
     rho, em, tex, paint, tint, em_term = np.array(DEFAULT_REFLECTANCE), black, None, None, np.ones(3), None
+    weight = 1.0
     if kind in ("ShaderNodeBsdfPrincipled", "ShaderNodeBsdfDiffuse"):
         socket = node.inputs["Base Color" if kind == "ShaderNodeBsdfPrincipled" else "Color"]
         term = _colour(socket, socket.name, material, warnings)
@@ -229,6 +231,10 @@ def read_material(material, warnings: list[str]) -> MaterialLight:
             em, em_term = _emission(
                 node.inputs["Emission Color"], node.inputs["Emission Strength"], material, warnings
             )
+            # the metallic and transmission lobes' shares are no diffuse light
+            kept = principled.transport_factor(node)
+            rho, tint = rho * kept, tint * kept
+            weight = principled.bake_weight(node)
     elif kind == "ShaderNodeEmission":
         rho = np.zeros(3)
         em, em_term = _emission(node.inputs["Color"], node.inputs["Strength"], material, warnings)
@@ -247,7 +253,7 @@ def read_material(material, warnings: list[str]) -> MaterialLight:
     alpha = cut
     if kind == "ShaderNodeBsdfPrincipled":
         alpha = _both(cut, _alpha(node.inputs["Alpha"], material, warnings), material, warnings)
-    return MaterialLight(rho, np.maximum(em, 0.0), tex, paint, tint, em_term, alpha)
+    return MaterialLight(rho, np.maximum(em, 0.0), tex, paint, tint, em_term, alpha, weight)
 
 
 def _emission(colour, strength, material, warnings: list[str]) -> tuple[np.ndarray, ColourTerm | None]:

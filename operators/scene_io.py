@@ -49,6 +49,7 @@ class _Mesh:
     alpha_maps: list = field(default_factory=list)
     alpha_of: np.ndarray | None = None
     alpha_uv: np.ndarray | None = None
+    bake_weight: np.ndarray | None = None  # (T,) the share of its diffuse light a bake reports
 
 
 def _read_mesh(data, warnings: list[str], cache: dict) -> _Colors:
@@ -59,6 +60,7 @@ def _read_mesh(data, warnings: list[str], cache: dict) -> _Colors:
     out = _Colors(
         np.array([m.reflectance for m in lights])[slot], np.array([m.emission for m in lights])[slot]
     )
+    out.bake_weight = np.array([m.bake_weight for m in lights], np.float64)[slot]
     out.opacity_of = {k: m.alpha.constant for k, m in enumerate(lights)}
     for k, m in enumerate(lights):
         if not np.any(slot == k):
@@ -155,11 +157,13 @@ class _Colors:
     slot: np.ndarray | None = None
     opacity_of: dict = field(default_factory=dict)  # slot -> constant alpha (1 where absent)
     alpha_maps: list = field(default_factory=list)  # (material slot, MaterialAlpha) with a usable map
+    bake_weight: np.ndarray | None = None  # (T,) materials.MaterialLight.bake_weight
 
 
 def _part(data, colors: _Colors) -> _Mesh:
     """A placed mesh (world space) with its colours and, for textured slots, its UVs."""
     part = _Mesh(data.vertices, data.triangles, colors.reflectance, colors.emission)
+    part.bake_weight = colors.bake_weight
     _alpha_part(part, data, colors)
     if colors.emitting:
         part.emission = part.emission.copy()
@@ -367,6 +371,9 @@ def read_scene(depsgraph, receivers, occluders=(), model=None) -> SceneMeshes:
         receiver=np.arange(len(items)) < n_receivers,
         albedo=_albedo(parts),
         coverage=_coverage(parts),
+        bake_weight=np.concatenate(
+            [np.ones(len(p.triangles)) if p.bake_weight is None else p.bake_weight for p in parts]
+        ),
     )
     # The same material on many objects would repeat its warning.
     objects = [it.obj for it in items]

@@ -5,7 +5,9 @@ from __future__ import annotations
 
 
 def principled(name, base=(0.8, 0.8, 0.8), emission=0.0):
-    """A Principled BSDF material of that base colour and white emission of that strength."""
+    """A Principled BSDF material of that base colour and white emission of that strength, a plain
+    Lambert surface as the closed forms assume: no specular layer (Specular IOR Level 0), which
+    would keep a share of the light a bake reports (operators/principled.py)."""
     import bpy
 
     mat = bpy.data.materials.new(name)
@@ -15,6 +17,7 @@ def principled(name, base=(0.8, 0.8, 0.8), emission=0.0):
     bsdf.inputs["Base Color"].default_value = (*base, 1.0)
     bsdf.inputs["Emission Color"].default_value = (1.0, 1.0, 1.0, 1.0)
     bsdf.inputs["Emission Strength"].default_value = emission
+    bsdf.inputs["Specular IOR Level"].default_value = 0.0
     return mat
 
 

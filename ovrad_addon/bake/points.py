@@ -185,6 +185,11 @@ def radiance_at(problem: Problem, request: BakeRequest, points, triangles, sides
         out[textured] += reflected * (gain - 1.0)
     if H is not None:
         out += albedo * H
+    if surfaces.bake_weight is not None:
+        # a layered material's bake reports only its diffuse lobe's share of the reflected light
+        scale = request.light.emission_scale if request.light is not None else 1.0
+        emitted = reconstruct(a, patch_emission(problem, scale))
+        out = emitted + surfaces.bake_weight[tri, None] * (out - emitted)
     return out / np.pi
 
 

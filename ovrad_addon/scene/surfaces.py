@@ -30,6 +30,9 @@ class Surfaces:
     gives the albedo at points).
     coverage: the materials' alpha where some triangle's is below 1 (None: every surface is
     opaque); light passes a see-through surface in proportion (rays.SeeThroughRays).
+    bake_weight: (T,) the share of the light a triangle reflects diffusely that a bake reports
+    (a layered material's upper lobes take the rest towards the viewer, who sees a baked point
+    along its normal); the solve's transport uses the reflectance alone. None: 1 everywhere.
     """
 
     vertices: np.ndarray
@@ -41,6 +44,7 @@ class Surfaces:
     receiver: np.ndarray
     albedo: TextureAlbedo | None = None
     coverage: Coverage | None = None
+    bake_weight: np.ndarray | None = None
 
     @staticmethod
     def from_arrays(
@@ -53,6 +57,7 @@ class Surfaces:
         receiver=None,
         albedo=None,
         coverage=None,
+        bake_weight=None,
     ) -> Surfaces:
         """Validate and normalise input arrays; raise OvradError on unusable input."""
         v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
@@ -91,7 +96,14 @@ class Surfaces:
                 raise OvradError("alpha must describe every triangle (1 where opaque)")
             if not np.any(coverage.see_through):
                 coverage = None
-        return Surfaces(v, t, oi, rho, em, names, rec, albedo, coverage)
+        weight = None
+        if bake_weight is not None:
+            weight = np.asarray(bake_weight, np.float64).reshape(-1)
+            if weight.shape != (len(t),) or not np.all((weight >= 0.0) & (weight <= 1.0)):
+                raise OvradError("bake_weight must give one share in [0, 1] per triangle")
+            if np.all(weight == 1.0):
+                weight = None
+        return Surfaces(v, t, oi, rho, em, names, rec, albedo, coverage, weight)
 
     # Computed once per Surfaces (frozen, so the arrays they derive from never change); callers
     # must not write into them.

@@ -680,3 +680,27 @@ def test_near_hits_take_the_skys_light_from_the_second_gathers_lattice(sky_block
     assert off.sum() >= 3 and np.all(want[off] > 0.2 * np.pi * 0.6)  # the sky less what the block hides
     rel = np.sqrt(np.sum((lattice - exact) ** 2) / np.sum(exact**2))
     assert rel < 0.01, rel
+
+
+def test_a_bake_reports_the_diffuse_share_of_the_reflected_light_and_all_the_emission():
+    """Surfaces.bake_weight scales what a bake point reflects (direct, gathered and the patches'
+    light alike), not what it emits, and leaves the solve alone: a floor under a lamp with a weight
+    of 0.9 bakes 0.9 x the floor without one; an emitting floor keeps its emission."""
+    v, t = scenes.plane(size=2.0, n=2)
+    lamp = Lamp(kind="POINT", position=(0.3, 0.2, 1.5), power=300.0)
+    pts = np.array([[0.2, 0.3, 0.0], [1.1, 1.6, 0.0], [1.8, 0.4, 0.0]])
+    em = 0.25
+    baked = []
+    for weight in (None, np.full(len(t), 0.9)):
+        s = Surfaces.from_arrays(v, t, reflectance=[0.6] * 3, emission=[em] * 3, bake_weight=weight)
+        problem = prepare(s, build_atlas(s, AtlasSettings(patch_count=80)))
+        state = solve(problem, (lamp,), SolveSettings())
+        light = replace(direct_light(problem, (lamp,)), gather_rays=64)
+        request = BakeRequest(state.radiosity, state.first_shot, light)
+        baked.append(radiance_at(problem, request, pts, floor_triangles(s, pts)))
+    plain, weighted = baked
+    emitted = em  # radiance: L_e, the floor's own
+    assert np.all(plain > emitted + 0.5)  # lit well above its emission
+    np.testing.assert_allclose(weighted - emitted, 0.9 * (plain - emitted), rtol=1e-12)
+    with pytest.raises(OvradError, match="bake_weight"):
+        Surfaces.from_arrays(v, t, bake_weight=np.full(len(t), 1.5))
