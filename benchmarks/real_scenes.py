@@ -416,6 +416,39 @@ def contact():
     return scene
 
 
+def principled(name: str, colour, roughness: float = 0.5, metallic: float = 0.0, level: float = 0.5):
+    """A Principled BSDF as users leave it: its specular layer on (IOR 1.5, Specular IOR Level 0.5
+    unless given), a roughness, a metallic share."""
+    mat = bpy.data.materials.new(name)
+    mat.diffuse_color = (*colour, 1.0)
+    bsdf = next(n for n in make_cornell.node_tree(mat).nodes if n.bl_idname == "ShaderNodeBsdfPrincipled")
+    bsdf.inputs["Base Color"].default_value = (*colour, 1.0)
+    bsdf.inputs["Roughness"].default_value = roughness
+    bsdf.inputs["IOR"].default_value = 1.5
+    bsdf.inputs["Specular IOR Level"].default_value = level
+    bsdf.inputs["Metallic"].default_value = metallic
+    return mat
+
+
+def layered():
+    """The contact room in Principled materials as users leave them (a specular layer on every
+    surface): walls at roughness 0.5, a floor at 0.8, a half-metallic box, a glossier shelf
+    (Specular IOR Level 0.8, roughness 0.3)."""
+    scene = _new_scene("layered")
+    w, d, h = 2.4, 2.4, 2.2
+    faces = room_faces(w, d, h)
+    floor = faces.pop("floor")
+    mesh("Room", list(faces.values()), principled("Walls", WHITE))
+    mesh("Floor", [floor], principled("Floor", (0.55, 0.5, 0.45), roughness=0.8))
+    box = principled("Box", WARM, roughness=0.6, metallic=0.5)
+    place("Box", box_mesh("Box", (0.6, 0.6, 0.6), box), (1.4, 1.0, 0.0), rotation_z=0.3)
+    shelf = principled("Shelf", BLUE, roughness=0.3, level=0.8)
+    place("Shelf", box_mesh("Shelf", (0.8, 0.3, 0.05), shelf, cuts=3), (0.8, d - 0.15, 1.2))
+    area_lamp(scene, "Lamp", (1.0, 1.4, h - 0.05), 0.5, 180.0)
+    camera(scene, (0.2, 0.1, 1.6), (1.6, 1.6, 0.4))
+    return scene
+
+
 def ceiling_opening():
     """A ceiling with a rectangular opening in which an emissive quad sits, coplanar."""
     scene = _new_scene("ceiling_opening")
@@ -686,6 +719,7 @@ SCENES = {
     "doorway": doorway,
     "lamps_doorway": lamps_doorway,
     "contact": contact,
+    "layered": layered,
     "ceiling_opening": ceiling_opening,
     "covers": covers,
     "duplicates": duplicates,
