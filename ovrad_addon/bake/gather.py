@@ -250,9 +250,8 @@ def _near_values(problem, near: NearField, cache, points, triangles, sides, t, s
         normals = np.take(index.charts.normals, tri, axis=0) * sides[exact, None]
         sky_at = None if sky is None or cache.sky_nodes else sky[exact]
         at = np.take(pts, exact, axis=0)
-        H[exact] = direct_irradiance(problem.emitter_rules, index.rays, cache.hit_light, at, normals, sky_at)[
-            0
-        ]
+        light = cache.hit_light  # without the sky when the lattice holds it
+        H[exact] = direct_irradiance(problem.emitter_rules, index.rays, light, at, normals, sky_at)[0]
     if cache.second_nodes is not None:
         indirect, sky_light = cache.second_at(points, triangles, sides)
         H += indirect * covered[:, None]
