@@ -180,19 +180,19 @@ class CornerCache:
                 self.frames, np.ones((2, T), np.int64), 3, np.float64, self._light
             )
         self.second_nodes, self.second_pattern = None, second_pattern
-        if near is not None and near.second_rays > 0:
-            if second_pattern is None or len(second_pattern) != near.second_rays:
-                raise ValueError("a second gather needs its pattern of second_rays directions")
-            # a lattice as fine as the patch values' (at most SECOND_DIVISIONS cells an edge)
-            second = np.clip(cuts(CORNER_ALPHA * smallest), 1, SECOND_DIVISIONS).astype(np.int64)
-            self.second_nodes = LatticeValues(self.frames, second, 6, np.float64, self._second)
+        second_gather = near is not None and near.second_rays > 0
         # the near hits' sky from the second gather's lattice; their other direct light where they land
         self.sky_nodes = (
-            self.second_nodes is not None
-            and near.sky_nodes
-            and near.light.sky is not None
-            and near.light.sky.emits
+            second_gather and near.sky_nodes and near.light.sky is not None and near.light.sky.emits
         )
+        if second_gather:
+            if second_pattern is None or len(second_pattern) != near.second_rays:
+                raise ValueError("a second gather needs its pattern of second_rays directions")
+            # a lattice as fine as the patch values' (at most SECOND_DIVISIONS cells an edge); its
+            # nodes hold the sky's light too when the near hits take it from there
+            second = np.clip(cuts(CORNER_ALPHA * smallest), 1, SECOND_DIVISIONS).astype(np.int64)
+            channels = 6 if self.sky_nodes else 3
+            self.second_nodes = LatticeValues(self.frames, second, channels, np.float64, self._second)
         self.hit_light = None if near is None else near.light
         if self.sky_nodes:
             self.hit_light = replace(near.light, sky=None)
@@ -217,12 +217,12 @@ class CornerCache:
         return direct_irradiance(problem.emitter_rules, index.rays, light, pts, normals, sky_at)[0]
 
     def _second(self, tri, side, pts) -> np.ndarray:
-        """(k, 6) at nodes: the irradiance from a second gather, the far values (patches' reflected
+        """(k, 3) at nodes: the irradiance from a second gather, the far values (patches' reflected
         radiosity and the emission the bake points do not sample) where its rays land, no near
-        field; then the sky's direct irradiance (0 when the near hits take it where they land)."""
+        field; with sky_nodes (k, 6): then the sky's direct irradiance."""
         index = self.problem.index
         surfaces = index.surfaces
-        out = np.zeros((len(pts), 6))
+        out = np.zeros((len(pts), 6 if self.sky_nodes else 3))
         if self.sky_nodes:
             sky = replace(self.near.light, lamps=(), emitters=None)
             out[:, 3:] = self._light(tri, side, pts, sky)
@@ -254,7 +254,7 @@ class CornerCache:
         """The second gather's irradiance and the sky's direct irradiance (k, 3 each; the sky 0 unless
         sky_nodes) at points on triangles (k,), seen from sides (k,)."""
         v = self.second_nodes.at(points, triangles, sides)
-        return v[:, :3], v[:, 3:]
+        return v[:, :3], (v[:, 3:] if self.sky_nodes else np.zeros((len(v), 3)))
 
     def indirect_at(self, points, triangles, sides) -> np.ndarray:
         """The second gather's irradiance (k, 3) at points on triangles (k,), seen from sides (k,)."""
