@@ -11,8 +11,9 @@ ovrad is a diffuse solver, so:
   bounce (reflective caustics off) Cycles leaves those layers out: they only scale what a bake
   reports, which Cycles views along each point's normal (bake_weight).
 BAKE_WEIGHT is that diffuse weight of a white Principled BSDF viewed along its normal, measured
-from Cycles' DIFFUSE bake colour pass (benchmarks/principled_layer.py, Blender 5.0.1), over
-roughness x F0. At roughness 0 it is 1 - F0 exactly, the Fresnel reflectance at normal incidence.
+from Cycles' DIFFUSE bake colour pass (benchmarks/principled_layer.py, Blender 5.0.1; 4.2.23 gives
+the same table, 5.3.0 within 6e-5), over roughness x F0. At roughness 0 it is 1 - F0 exactly, F0
+being the Fresnel reflectance at normal incidence.
 """
 
 from __future__ import annotations
