@@ -18,7 +18,9 @@ Light, Hue, Saturation, Color, Value) and a Mix node's clamped result, on a cons
 transforms the interpolated colour); a Mix of two textures through one UV map at one size texel by
 texel, of paint with the same paint corner by corner. Anything else that drives a colour (a node
 on a texture times paint, a linked factor or node input, other nodes) gives the material's
-viewport colour and one warning naming the material and the node.
+viewport colour and one warning naming the material and the node. An Image Texture whose image has
+no pixels (a missing file) is magenta, as Cycles renders it, with a warning naming the image. A
+Principled BSDF's layers scale its diffuse light as principled.py says.
 """
 
 from __future__ import annotations
@@ -125,8 +127,13 @@ class _Unread(Exception):
     """A colour the reader cannot follow: the node that stops it, and why."""
 
 
-def _term(socket, material, depth: int = 0) -> ColourTerm:
-    """The ColourTerm a colour socket gives; raises _Unread naming the node it cannot follow."""
+# What Cycles renders an image without pixels (a missing file) as: magenta, alpha 1.
+MISSING_RGB = (1.0, 0.0, 1.0)
+
+
+def _term(socket, material, depth: int = 0, missing: list[str] | None = None) -> ColourTerm:
+    """The ColourTerm a colour socket gives; raises _Unread naming the node it cannot follow. An
+    Image Texture without pixels gives MISSING_RGB, as Cycles renders it, its name added to missing."""
     if not socket.is_linked:
         return ColourTerm(np.array(socket.default_value[:3], float))
     node, out = upstream(socket)
@@ -140,7 +147,9 @@ def _term(socket, material, depth: int = 0) -> ColourTerm:
         if uv is not None and node.projection == "FLAT":
             px = image_pixels(node.image)
             if px is None:
-                raise _Unread(f"image '{node.image.name}' without pixels (missing file?)")
+                if missing is not None:
+                    missing.append(node.image.name)
+                return ColourTerm(np.array(MISSING_RGB))
             return ColourTerm(np.ones(3), MaterialTexture(px[0], uv, node.image.name, px[1]))
     label = f"{material.name}: {node.name}"  # names a texture's pixels after a nonlinear node
     if kind in ("ShaderNodeMix", "ShaderNodeMixRGB") and (mix := _mix_inputs(node)) is not None:
@@ -148,7 +157,7 @@ def _term(socket, material, depth: int = 0) -> ColourTerm:
         if not fac.is_linked and blend in MIX_BLENDS:
             f = float(fac.default_value)
             f = min(max(f, 0.0), 1.0) if clamp else f
-            A, B = _term(a_in, material, depth + 1), _term(b_in, material, depth + 1)
+            A, B = _term(a_in, material, depth + 1, missing), _term(b_in, material, depth + 1, missing)
             got = None
             if blend == "MIX":
                 got = combine(1.0 - f, A, f, B)
@@ -167,7 +176,7 @@ def _term(socket, material, depth: int = 0) -> ColourTerm:
                 return got
     if kind == "ShaderNodeInvert" and not node.inputs["Fac"].is_linked:
         f = float(node.inputs["Fac"].default_value)  # c + f (1 - 2c)
-        got = affine(_term(node.inputs["Color"], material, depth + 1), 1.0 - 2.0 * f, f)
+        got = affine(_term(node.inputs["Color"], material, depth + 1, missing), 1.0 - 2.0 * f, f)
         if got is not None:
             return got
     fn = None
@@ -180,7 +189,7 @@ def _term(socket, material, depth: int = 0) -> ColourTerm:
     elif kind == "ShaderNodeRGBCurve" and (v := _constants(node, "Fac")):
         fn = partial(CurvesTable.of(node.mapping), fac=v[0])
     if fn is not None:
-        got = apply(_term(node.inputs["Color"], material, depth + 1), fn, label)
+        got = apply(_term(node.inputs["Color"], material, depth + 1, missing), fn, label)
         if got is not None:
             return got
     raise _Unread(f"a {node.bl_label} node")
@@ -188,8 +197,11 @@ def _term(socket, material, depth: int = 0) -> ColourTerm:
 
 def _colour(socket, what: str, material, warnings: list[str]) -> ColourTerm | None:
     """The ColourTerm of a colour socket; None with a warning if it cannot be read."""
+    missing: list[str] = []
     try:
-        return _term(socket, material)
+        term = _term(socket, material, missing=missing)
+        _warn_missing(material, what, missing, warnings)
+        return term
     except _Unread as e:
         warnings.append(
             f"material '{material.name}': {what} is driven by {e}; using the material's viewport colour "
@@ -198,6 +210,14 @@ def _colour(socket, what: str, material, warnings: list[str]) -> ColourTerm | No
             "factors and settings)"
         )
         return None
+
+
+def _warn_missing(material, what: str, missing: list[str], warnings: list[str]) -> None:
+    for name in dict.fromkeys(missing):
+        warnings.append(
+            f"material '{material.name}': image '{name}' has no pixels (missing file?); its {what} is "
+            "read as Cycles renders it: magenta"
+        )
 
 
 def _viewport(material) -> np.ndarray:
@@ -264,8 +284,10 @@ def _emission(colour, strength, material, warnings: list[str]) -> tuple[np.ndarr
         warnings.append(f"material '{material.name}': an emission strength driven by nodes is ignored")
         return np.zeros(3), None
     s = float(strength.default_value)
+    missing: list[str] = []
     try:
-        term = _term(colour, material)
+        term = _term(colour, material, missing=missing)
+        _warn_missing(material, "emission colour", missing, warnings)
     except _Unread as e:
         warnings.append(f"material '{material.name}': emission colour driven by {e} is ignored")
         return np.zeros(3), None

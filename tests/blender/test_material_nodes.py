@@ -482,3 +482,31 @@ def test_an_8_bit_srgb_texture_is_interpolated_before_it_is_decoded(ovrad, fresh
         linear[r1, c0] * (1 - fx) + linear[r1, c1] * fx
     ) * fy
     assert np.abs(other - baked).max() > 0.02
+
+
+def test_an_image_without_pixels_is_magenta_as_cycles_renders_it(ovrad, fresh_scene, tmp_path):
+    # A glTF whose textures are missing (the BoomBox asset) renders magenta in Cycles, in its base
+    # colour and its emission alike: the reader gives what Cycles' own emission bake gives, with a
+    # warning naming the image, instead of the viewport colour and no emission.
+    img = bpy.data.images.new("gone", 4, 4)
+    img.source = "FILE"
+    img.filepath = str(tmp_path / "gone.png")  # no such file
+    mat = bpy.data.materials.new("missing texture")
+    mat.use_nodes = True
+    tree = mat.node_tree
+    bsdf = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeBsdfPrincipled")
+    bsdf.inputs["Specular IOR Level"].default_value = 0.0
+    tex = tree.nodes.new("ShaderNodeTexImage")
+    tex.image = img
+    tree.links.new(tex.outputs["Color"], bsdf.inputs["Base Color"])
+    tree.links.new(tex.outputs["Color"], bsdf.inputs["Emission Color"])
+    bsdf.inputs["Emission Strength"].default_value = 2.0
+    light, warnings = read(ovrad, mat)
+    np.testing.assert_allclose(light.reflectance, [1.0, 0.0, 1.0])
+    np.testing.assert_allclose(light.emission, [2.0, 0.0, 2.0])
+    assert len(warnings) == 2 and all("'gone'" in w and "magenta" in w for w in warnings)
+    bpy.ops.mesh.primitive_plane_add(size=1.0)
+    plane = bpy.context.active_object
+    plane.data.materials.append(mat)
+    baked = bake_emission(plane, mat, 4)  # Cycles: emission colour x strength
+    np.testing.assert_allclose(baked, np.broadcast_to([2.0, 0.0, 2.0], baked.shape), atol=1e-6)
