@@ -212,6 +212,23 @@ def _colour(socket, what: str, material, warnings: list[str]) -> ColourTerm | No
         return None
 
 
+def float_input(socket, material) -> float | None:
+    """A float input driven by a Separate Color node (RGB) of a constant colour (an Image Texture
+    whose file is missing included: a glTF import's metallic and roughness): that channel; None
+    for anything else."""
+    node, out = upstream(socket)
+    if node is None or node.bl_idname != "ShaderNodeSeparateColor" or node.mode != "RGB":
+        return None
+    channel = {"Red": 0, "Green": 1, "Blue": 2}.get(out.name)
+    if channel is None:
+        return None
+    try:
+        term = _term(node.inputs["Color"], material)
+    except _Unread:
+        return None
+    return float(term.tint[channel]) if term.constant else None
+
+
 def _warn_missing(material, what: str, missing: list[str], warnings: list[str]) -> None:
     for name in dict.fromkeys(missing):
         warnings.append(
@@ -252,9 +269,10 @@ def read_material(material, warnings: list[str]) -> MaterialLight:
                 node.inputs["Emission Color"], node.inputs["Emission Strength"], material, warnings
             )
             # the metallic and transmission lobes' shares are no diffuse light
-            kept = principled.transport_factor(node)
+            linked = partial(float_input, material=material)
+            kept = principled.transport_factor(node, linked)
             rho, tint = rho * kept, tint * kept
-            weight = principled.bake_weight(node)
+            weight = principled.bake_weight(node, linked)
     elif kind == "ShaderNodeEmission":
         rho = np.zeros(3)
         em, em_term = _emission(node.inputs["Color"], node.inputs["Strength"], material, warnings)

@@ -59,35 +59,41 @@ def layer_weight(roughness: float, f0: float) -> float:
     return float(np.interp(np.clip(f0, 0.0, 1.0), F0, row))
 
 
-def _value(node, name: str, fallback: float) -> float:
-    """A float input's value; `fallback` where nodes drive it (or the input is missing)."""
+def _value(node, name: str, fallback: float, linked=None) -> float:
+    """A float input's value: its own, or where nodes drive it what linked(socket) reads (None:
+    unread), else `fallback` (also for a missing input)."""
     socket = node.inputs.get(name)
-    if socket is None or socket.is_linked:
+    if socket is None:
         return fallback
-    return float(socket.default_value)
+    if not socket.is_linked:
+        return float(socket.default_value)
+    got = None if linked is None else linked(socket)
+    return fallback if got is None else float(got)
 
 
-def transport_factor(node) -> float:
+def transport_factor(node, linked=None) -> float:
     """The share of a Principled BSDF's Base Color its diffuse lobe keeps: (1 - Metallic) x
-    (1 - Transmission Weight), constants (driven by nodes: read as 0)."""
-    metallic = np.clip(_value(node, "Metallic", 0.0), 0.0, 1.0)
-    transmission = np.clip(_value(node, "Transmission Weight", 0.0), 0.0, 1.0)
+    (1 - Transmission Weight) (driven by nodes linked cannot read: 0). linked(socket) -> float or
+    None reads a float input that nodes drive (materials.float_input)."""
+    metallic = np.clip(_value(node, "Metallic", 0.0, linked), 0.0, 1.0)
+    transmission = np.clip(_value(node, "Transmission Weight", 0.0, linked), 0.0, 1.0)
     return float((1.0 - metallic) * (1.0 - transmission))
 
 
-def bake_weight(node) -> float:
+def bake_weight(node, linked=None) -> float:
     """The share of a Principled BSDF's diffuse light a bake reports: under its specular lobe
     (Roughness, IOR, Specular IOR Level, the brightest channel of Specular Tint) and its coat (Coat
-    Weight, Coat Roughness, Coat IOR), viewed along the normal."""
-    roughness = _value(node, "Roughness", DEFAULT_ROUGHNESS)
+    Weight, Coat Roughness, Coat IOR), viewed along the normal. linked: as transport_factor's."""
+    roughness = _value(node, "Roughness", DEFAULT_ROUGHNESS, linked)
     tint = node.inputs.get("Specular Tint")
     brightest = 1.0
     if tint is not None and not tint.is_linked:
         brightest = max(0.0, float(max(tint.default_value[:3])))
-    f0 = f0_of(_value(node, "IOR", 1.5), _value(node, "Specular IOR Level", 0.5)) * brightest
+    level = _value(node, "Specular IOR Level", 0.5, linked)
+    f0 = f0_of(_value(node, "IOR", 1.5, linked), level) * brightest
     weight = layer_weight(roughness, f0)
-    coat = np.clip(_value(node, "Coat Weight", 0.0), 0.0, 1.0)
+    coat = np.clip(_value(node, "Coat Weight", 0.0, linked), 0.0, 1.0)
     if coat > 0.0:
-        lost = 1.0 - layer_weight(_value(node, "Coat Roughness", 0.03), f0_of(_value(node, "Coat IOR", 1.5)))
-        weight *= 1.0 - coat * lost
+        coat_f0 = f0_of(_value(node, "Coat IOR", 1.5, linked))
+        weight *= 1.0 - coat * (1.0 - layer_weight(_value(node, "Coat Roughness", 0.03, linked), coat_f0))
     return float(weight)

@@ -112,3 +112,40 @@ def test_a_diffuse_bsdf_and_the_defaults_of_the_reader(ovrad, fresh_scene):
     principled_module = ovrad.operators.principled
     assert light.bake_weight == pytest.approx(principled_module.layer_weight(0.5, 0.04))
     np.testing.assert_allclose(light.reflectance, [0.8, 0.6, 0.4])
+
+
+def test_a_gltf_material_without_its_textures_is_read_as_cycles_renders_it(ovrad, fresh_scene, tmp_path):
+    # A glTF import (the BoomBox asset) whose images are missing: Cycles renders each missing image
+    # magenta, so the metallic-roughness map's Separate Color gives Metallic (blue) 1 and Roughness
+    # (green) 0: a mirror-like metal, no diffuse light. The reader follows the Separate Color to the
+    # same values; a map that is there (varying) is not read (Metallic 0, Roughness 0.5).
+    mat = principled("gltf", 0.5, 1.5, 0.5, 0.0, 0.0)
+    tree = mat.node_tree
+    bsdf = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeBsdfPrincipled")
+    for name in ("base", "orm"):
+        img = bpy.data.images.new(name, 4, 4)
+        img.source = "FILE"
+        img.filepath = str(tmp_path / f"{name}.png")  # no such file
+        tex = tree.nodes.new("ShaderNodeTexImage")
+        tex.image = img
+        if name == "base":
+            tree.links.new(tex.outputs["Color"], bsdf.inputs["Base Color"])
+        else:
+            split = tree.nodes.new("ShaderNodeSeparateColor")
+            tree.links.new(tex.outputs["Color"], split.inputs["Color"])
+            tree.links.new(split.outputs["Green"], bsdf.inputs["Roughness"])
+            tree.links.new(split.outputs["Blue"], bsdf.inputs["Metallic"])
+    half = principled("half", 0.5, 1.5, 0.5, 0.0, 0.0, colour=(0.8, 0.6, 0.4))
+    split = half.node_tree.nodes.new("ShaderNodeSeparateColor")
+    split.inputs["Color"].default_value = (0.0, 0.3, 0.5, 1.0)
+    hb = next(n for n in half.node_tree.nodes if n.bl_idname == "ShaderNodeBsdfPrincipled")
+    half.node_tree.links.new(split.outputs["Green"], hb.inputs["Roughness"])
+    half.node_tree.links.new(split.outputs["Blue"], hb.inputs["Metallic"])
+    read = []
+    for m in (mat, half):
+        warnings: list[str] = []
+        light = ovrad.operators.materials.read_material(m, warnings)
+        read.append(light.reflectance * light.bake_weight)
+    np.testing.assert_allclose(read[0], 0.0)
+    np.testing.assert_allclose(read[1], np.array([0.8, 0.6, 0.4]) * 0.5 * 0.96025, rtol=2e-3)
+    np.testing.assert_allclose(colour_pass([mat, half], tmp_path), np.array(read), atol=2e-3)
