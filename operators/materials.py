@@ -19,7 +19,8 @@ transforms the interpolated colour); a Mix of two textures through one UV map at
 texel, of paint with the same paint corner by corner. Anything else that drives a colour (a node
 on a texture times paint, a linked factor or node input, other nodes) gives the material's
 viewport colour and one warning naming the material and the node. An Image Texture whose image has
-no pixels (a missing file) is magenta, as Cycles renders it, with a warning naming the image. A
+no pixels (a missing file) is magenta, as Cycles renders it, with a warning naming the image; an
+emission colour from one is ignored, with a warning. A
 Principled BSDF's layers scale its diffuse light as principled.py says.
 """
 
@@ -305,9 +306,17 @@ def _emission(colour, strength, material, warnings: list[str]) -> tuple[np.ndarr
     missing: list[str] = []
     try:
         term = _term(colour, material, missing=missing)
-        _warn_missing(material, "emission colour", missing, warnings)
     except _Unread as e:
         warnings.append(f"material '{material.name}': emission colour driven by {e} is ignored")
+        return np.zeros(3), None
+    if missing:
+        # Cycles renders it magenta over the whole mesh: a large emitter next to its own receivers,
+        # whose exact near field (light.tree) a bake cannot afford
+        names = ", ".join(f"'{n}'" for n in dict.fromkeys(missing))
+        warnings.append(
+            f"material '{material.name}': emission colour from image {names} without pixels (missing "
+            "file?) is ignored (Cycles renders it magenta)"
+        )
         return np.zeros(3), None
     if term.constant:
         return term.tint * s, None
