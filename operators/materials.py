@@ -20,8 +20,8 @@ texel, of paint with the same paint corner by corner. Anything else that drives 
 on a texture times paint, a linked factor or node input, other nodes) gives the material's
 viewport colour and one warning naming the material and the node. An Image Texture whose image has
 no pixels (a missing file) is magenta, as Cycles renders it, with a warning naming the image; an
-emission colour from one is ignored, with a warning. A
-Principled BSDF's layers scale its diffuse light as principled.py says.
+emission colour from one is ignored, with a warning. A Principled BSDF's layers scale its diffuse
+light as principled.py says (float_input reads a Separate Color of a constant colour for them).
 """
 
 from __future__ import annotations
