@@ -248,7 +248,7 @@ def _near_values(problem, near: NearField, cache, points, triangles, sides, t, s
     if len(exact):
         tri = triangles[exact]
         normals = np.take(index.charts.normals, tri, axis=0) * sides[exact, None]
-        sky_at = None if sky is None or cache.sky_nodes else sky[exact]
+        sky_at = None if sky is None else sky[exact]  # unused when the lattice holds the sky
         at = np.take(pts, exact, axis=0)
         light = cache.hit_light  # without the sky when the lattice holds it
         H[exact] = direct_irradiance(problem.emitter_rules, index.rays, light, at, normals, sky_at)[0]

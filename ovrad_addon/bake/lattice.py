@@ -193,9 +193,12 @@ class CornerCache:
             second = np.clip(cuts(CORNER_ALPHA * smallest), 1, SECOND_DIVISIONS).astype(np.int64)
             channels = 6 if self.sky_nodes else 3
             self.second_nodes = LatticeValues(self.frames, second, channels, np.float64, self._second)
+        # with sky_nodes, the near hits' rule without the sky and the nodes' rule of the sky alone
         self.hit_light = None if near is None else near.light
+        self.sky_light = None
         if self.sky_nodes:
             self.hit_light = replace(near.light, sky=None)
+            self.sky_light = replace(near.light, lamps=(), emitters=None)
 
     def _values(self, tri, side, pts) -> np.ndarray:
         pts = inside(self.problem.index.surfaces, pts, tri)
@@ -224,8 +227,7 @@ class CornerCache:
         surfaces = index.surfaces
         out = np.zeros((len(pts), 6 if self.sky_nodes else 3))
         if self.sky_nodes:
-            sky = replace(self.near.light, lamps=(), emitters=None)
-            out[:, 3:] = self._light(tri, side, pts, sky)
+            out[:, 3:] = self._light(tri, side, pts, self.sky_light)
         pts = inside(surfaces, pts, tri)
         nrm = index.charts.normals[tri] * side[:, None]
         local = self.second_pattern
@@ -255,10 +257,6 @@ class CornerCache:
         sky_nodes) at points on triangles (k,), seen from sides (k,)."""
         v = self.second_nodes.at(points, triangles, sides)
         return v[:, :3], (v[:, 3:] if self.sky_nodes else np.zeros((len(v), 3)))
-
-    def indirect_at(self, points, triangles, sides) -> np.ndarray:
-        """The second gather's irradiance (k, 3) at points on triangles (k,), seen from sides (k,)."""
-        return self.second_at(points, triangles, sides)[0]
 
     def light_at(self, points, triangles, sides) -> np.ndarray:
         """Near-field direct irradiance (k, 3) at points on triangles (k,), seen from sides (k,)."""
