@@ -715,6 +715,31 @@ def sky_hdr():
     return scene
 
 
+def bulb():
+    """A room lit only by an emissive mesh: a smooth UV sphere of 64 x 32 segments (4 032
+    triangles) 5 cm over a side table near a corner, as users model a bulb; walls, floor and
+    table within a few of its radii."""
+    import bmesh
+
+    scene = _new_scene("bulb")
+    white, warm = diffuse("White", WHITE), diffuse("Warm", WARM)
+    w, d, h = 2.4, 2.4, 2.2
+    mesh("Room", list(room_faces(w, d, h).values()), white)
+    place("Table", box_mesh("Table", (0.5, 0.5, 0.5), warm), (0.4, d - 0.4, 0.0))
+    place("Box", box_mesh("Box", (0.6, 0.6, 0.6), white), (1.5, 1.0, 0.0), rotation_z=0.3)
+    me = bpy.data.meshes.new("Bulb")
+    bm = bmesh.new()
+    bmesh.ops.create_uvsphere(bm, u_segments=64, v_segments=32, radius=0.12)
+    for f in bm.faces:
+        f.smooth = True
+    bm.to_mesh(me)
+    bm.free()
+    me.materials.append(emission("Glow", (60.0, 48.0, 34.0)))
+    place("Bulb", me, (0.4, d - 0.4, 0.67))
+    camera(scene, (2.2, 0.2, 1.6), (0.6, 2.0, 0.6))
+    return scene
+
+
 SCENES = {
     "doorway": doorway,
     "lamps_doorway": lamps_doorway,
@@ -728,6 +753,7 @@ SCENES = {
     "painted": painted,
     "mixed": mixed,
     "screen": screen,
+    "bulb": bulb,
     "foliage": foliage,
     "sky_constant": sky_constant,
     "sky_hdr": sky_hdr,

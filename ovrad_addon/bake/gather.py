@@ -240,11 +240,13 @@ def _near_values(problem, near: NearField, cache, points, triangles, sides, t, s
     index = problem.index
     surfaces = index.surfaces
     pts = inside(surfaces, points, triangles)
-    H = np.empty((len(pts), 3))
-    small = cache.size[triangles] <= cache.light_size * t
+    rho = surfaces.reflectance_at(triangles, pts)
+    dark = ~np.any(rho > 0, axis=1)  # reflects nothing (an Emission shader, a metal): no light asked
+    H = np.zeros((len(pts), 3))
+    small = (cache.size[triangles] <= cache.light_size * t) & ~dark
     if np.any(small):
         H[small] = cache.light_at(points[small], triangles[small], sides[small])
-    exact = np.flatnonzero(~small)
+    exact = np.flatnonzero(~small & ~dark)
     if len(exact):
         tri = triangles[exact]
         normals = np.take(index.charts.normals, tri, axis=0) * sides[exact, None]
@@ -253,13 +255,14 @@ def _near_values(problem, near: NearField, cache, points, triangles, sides, t, s
         light = cache.hit_light  # without the sky when the lattice holds it
         H[exact] = direct_irradiance(problem.emitter_rules, index.rays, light, at, normals, sky_at)[0]
     if cache.second_nodes is not None:
-        indirect, sky_light = cache.second_at(points, triangles, sides)
-        H += indirect * covered[:, None]
+        some = np.flatnonzero(~dark)
+        indirect, sky_light = cache.second_at(points[some], triangles[some], sides[some])
+        H[some] += indirect * covered[some, None]
         if cache.sky_nodes and len(exact):
             # the sky's light at the exact hits from the lattice (the small ones have it from corners)
             lit = exact if sky is None else exact[sky[exact]]
-            H[lit] += sky_light[lit]
-    return surfaces.reflectance_at(triangles, pts) * H
+            H[lit] += sky_light[np.searchsorted(some, lit)]
+    return rho * H
 
 
 def unique_points(points, normals, tolerance: float) -> tuple[np.ndarray, np.ndarray]:

@@ -88,13 +88,12 @@ class BakeRequest:
     corner_cache: dict | None = None
 
 
-def _at_points(problem: Problem, request: BakeRequest, points, triangles, sides):
+def _at_points(problem: Problem, request: BakeRequest, points, triangles, sides, lit=None):
     """What both reconstructions need at surface points: triangles (m,), alpha (m, n), the
     coefficients the patches reconstruct, and the direct irradiance (m, 3) computed at the points
-    where the solve's first shot is split off (else None)."""
+    where the solve's first shot is split off (else None). lit (m,) bool: the points whose
+    irradiance is asked; the others get 0 and cast no rays (None: all)."""
     radiosity, first_shot, light = request.radiosity, request.first_shot, request.light
-    gather_points, indirect, gather_normals = request.gather_points, request.indirect, request.gather_normals
-    corner_cache = request.corner_cache
     tri = np.asarray(triangles, np.int64)
     pts = np.asarray(points, np.float64).reshape(-1, 3)
     side = np.broadcast_to(np.asarray(sides), tri.shape)
@@ -103,64 +102,77 @@ def _at_points(problem: Problem, request: BakeRequest, points, triangles, sides)
         return tri, a, radiosity, None
     if first_shot.shape != radiosity.shape:
         raise OvradError("the first shot does not match the radiosity: solve again")
+    if light.gather_rays > 0:
+        # final gather (bake/gather.py): the indirect light comes from rays cast at the points, the
+        # patches give only the points' own emission; a point needs no patch, only a lit side (sheet)
+        coeffs = patch_emission(problem, light.emission_scale)
+        covered = (problem.index.sheet_of(tri, side) >= 0) | without_area(problem, tri)  # see bake_normals
+    else:
+        coeffs = radiosity - first_shot
+        covered = np.asarray(a.sum(axis=1)).ravel() > 0
+    ask = np.arange(len(pts)) if lit is None else np.flatnonzero(np.asarray(lit, bool) & covered)
+    H = np.zeros((len(pts), 3))
+    if len(ask):
+        H[ask] = _irradiance(problem, request, pts[ask], tri[ask], side[ask], a[ask], ask, len(pts))
+    return tri, a, coeffs, np.where(covered[:, None], H, 0.0)
+
+
+def _rows(values, rows: np.ndarray, m: int):
+    """Rows `rows` of a request's per-point field of m points: (m, 3), or (m, k, 3) normals (None
+    stays None)."""
+    if values is None:
+        return None
+    v = np.asarray(values, np.float64)
+    return v.reshape(m, -1, 3)[rows] if v.ndim == 3 else v.reshape(m, 3)[rows]
+
+
+def _irradiance(problem: Problem, request: BakeRequest, pts, tri, side, a, rows, m) -> np.ndarray:
+    """The irradiance (k, 3) at k bake points (rows of the request's m points): the direct light
+    computed there, plus the final gather's indirect light when the gather is on."""
+    radiosity, first_shot, light = request.radiosity, request.first_shot, request.light
     normals = bake_normals(problem, tri, side)
     seen = bake_sky(problem, light, radiosity)
     sky_at = may_see_sky(a, seen)
     H = direct_irradiance(problem.emitter_rules, problem.index.rays, light, pts, normals, sky_at)[0]
-    covered = np.asarray(a.sum(axis=1)).ravel() > 0
-    coeffs = radiosity - first_shot
-    # --- final gather (bake/gather.py): the indirect light comes from rays cast at the points, the
-    # patches give only the points' own emission; a point needs no patch, only a lit side (sheet)
-    if light.gather_rays > 0:
-        index = problem.index
-        own = own_emission(problem, light.emitters, light.emission_scale)
-        coeffs = patch_emission(problem, light.emission_scale)
-        if indirect is not None:
-            H = H + np.asarray(indirect, np.float64).reshape(-1, 3)
-        else:
-            near = None
-            if light.near_field:
-                few = min(light.samples, NEAR_LIGHT_SAMPLES)
-                near_light = replace(
-                    light,
-                    samples=few,
-                    emitter_samples=emitter_sample_count(
-                        problem.emitter_rules, light, min(light.samples, NEAR_PICKED_SAMPLES), few
-                    ),
-                    sky_samples=min(light.sky_samples, NEAR_SKY_SAMPLES),
-                    area_jittered=True,
-                )
-                near = NearField(
-                    near_light,
-                    radiosity - first_shot - coeffs,
-                    coeffs - own,
-                    sky_seen=seen,
-                    second_rays=light.near_gather_rays,
-                )
-            at = pts if gather_points is None else np.asarray(gather_points, np.float64).reshape(-1, 3)
-            axis, spread = normals, None
-            if gather_normals is not None:
-                spread = np.asarray(gather_normals, np.float64)
-                spread = spread.reshape(len(pts), spread.shape[-2], 3)
-                axis = gather_axis(spread)
-            H = H + gather_unique(
-                problem,
-                Gather(
-                    radiosity,
-                    own,
-                    light.gather_rays,
-                    near=near,
-                    corner_cache=corner_cache,
-                    seed=GATHER_SEED if light.gather_seed is None else light.gather_seed,
-                ),
-                at,
-                axis,
-                tri,
-                spread=spread,
-            )
-        covered = (index.sheet_of(tri, side) >= 0) | without_area(problem, tri)  # see bake_normals
-    # --- end of final gather
-    return tri, a, coeffs, np.where(covered[:, None], H, 0.0)
+    if light.gather_rays <= 0:
+        return H
+    indirect = _rows(request.indirect, rows, m)
+    if indirect is not None:
+        return H + indirect
+    near = None
+    own = own_emission(problem, light.emitters, light.emission_scale)
+    if light.near_field:
+        few = min(light.samples, NEAR_LIGHT_SAMPLES)
+        near_light = replace(
+            light,
+            samples=few,
+            emitter_samples=emitter_sample_count(
+                problem.emitter_rules, light, min(light.samples, NEAR_PICKED_SAMPLES), few
+            ),
+            sky_samples=min(light.sky_samples, NEAR_SKY_SAMPLES),
+            area_jittered=True,
+        )
+        near = NearField(
+            near_light,
+            radiosity - first_shot - patch_emission(problem, light.emission_scale),
+            patch_emission(problem, light.emission_scale) - own,
+            sky_seen=seen,
+            second_rays=light.near_gather_rays,
+        )
+    at = _rows(request.gather_points, rows, m)
+    at = pts if at is None else at
+    axis, spread = normals, _rows(request.gather_normals, rows, m)
+    if spread is not None:
+        axis = gather_axis(spread)
+    gather = Gather(
+        radiosity,
+        own,
+        light.gather_rays,
+        near=near,
+        corner_cache=request.corner_cache,
+        seed=GATHER_SEED if light.gather_seed is None else light.gather_seed,
+    )
+    return H + gather_unique(problem, gather, at, axis, tri, spread=spread)
 
 
 def radiance_at(problem: Problem, request: BakeRequest, points, triangles, sides=1) -> np.ndarray:
@@ -172,9 +184,12 @@ def radiance_at(problem: Problem, request: BakeRequest, points, triangles, sides
     light a point reflects is its own albedo (surfaces.reflectance_at: a texture's where there is
     one) times the irradiance there.
     """
-    tri, a, coeffs, H = _at_points(problem, request, points, triangles, sides)
     surfaces = problem.surfaces
-    albedo = surfaces.reflectance_at(tri, np.asarray(points, np.float64).reshape(-1, 3))
+    albedo = surfaces.reflectance_at(
+        np.asarray(triangles, np.int64), np.asarray(points, np.float64).reshape(-1, 3)
+    )
+    # a surface that reflects nothing (an Emission shader, a black texel, a metal) needs no light
+    tri, a, coeffs, H = _at_points(problem, request, points, triangles, sides, np.any(albedo > 0, axis=1))
     out = reconstruct(a, coeffs)
     textured = surfaces.textured(tri)
     if np.any(textured):

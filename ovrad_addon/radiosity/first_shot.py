@@ -176,10 +176,19 @@ def solve(
         )
         small = bool(np.any(light.emitters))
         seen = None if T.sky_seen is None else T.sky_seen[rp.owner]
-        H, direct_rays = direct_irradiance(
-            problem.emitter_rules, problem.index.rays, light, rp.points, rp.normals, seen
+        rho = problem.surfaces.reflectance_at(rp.triangle, rp.points)
+        # receivers that reflect nothing (an Emission shader's, a metal's) need no light
+        lit = np.flatnonzero(np.any(rho > 0, axis=1))
+        H = np.zeros((len(rho), 3))
+        H[lit], direct_rays = direct_irradiance(
+            problem.emitter_rules,
+            problem.index.rays,
+            light,
+            rp.points[lit],
+            rp.normals[lit],
+            None if seen is None else seen[lit],
         )
-        received = T.test(H, problem.surfaces.reflectance_at(rp.triangle, rp.points), rp)
+        received = T.test(H, rho, rp)
         if not np.any(received > 0) and not np.any(E > 0):
             if sky is not None and sky.emits:
                 raise OvradError(

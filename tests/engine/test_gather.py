@@ -704,3 +704,59 @@ def test_a_bake_reports_the_diffuse_share_of_the_reflected_light_and_all_the_emi
     np.testing.assert_allclose(weighted - emitted, 0.9 * (plain - emitted), rtol=1e-12)
     with pytest.raises(OvradError, match="bake_weight"):
         Surfaces.from_arrays(v, t, bake_weight=np.full(len(t), 1.5))
+
+
+def test_a_surface_that_reflects_nothing_bakes_its_emission_and_asks_no_light(monkeypatch):
+    """An emitter with no diffuse reflectance (an Emission shader) bakes exactly its emission, and
+    neither its bake points nor the gather hits landing on it ask for light (no shadow rays, no
+    gather): a 4 000-triangle emissive sphere's vertices cast 200 000 gather rays whose hits under
+    it each walked the light tree. The floor beside it still gets its light."""
+    floor_v, floor_t = scenes.plane(size=4.0, n=4)
+    parts = [(floor_v - [1.5, 1.5, 0.0], floor_t)] + scenes.box_faces((0, 0, 0), (1, 1, 1))
+    v, t, o = scenes.merge(parts, obj=[0] + [1] * 6)
+    rho = np.where(o[:, None] == 0, 0.5, 0.0) * np.ones((1, 3))
+    L_e = 3.0
+    em = np.where(o[:, None] == 1, L_e, 0.0) * np.ones((1, 3))
+    s = Surfaces.from_arrays(v, t, o, rho, em, object_names=["floor", "glow"])
+    problem = prepare(s, build_atlas(s, AtlasSettings(patch_count=400)))
+    lamp = Lamp(kind="POINT", position=(2.0, 0.5, 2.0), power=200.0)
+    state = solve(problem, (lamp,), SolveSettings(tolerance=1e-5))
+    light = replace(direct_light(problem, (lamp,)), gather_rays=64, near_field=True, near_gather_rays=16)
+    request = BakeRequest(state.radiosity, state.first_shot, light)
+    asked = []
+    for module in (gather_module, __import__("ovrad_addon.bake.points", fromlist=["x"])):
+        real = module.direct_irradiance
+
+        def spy(source, rays, lt, points, *args, _real=real, **kw):
+            asked.append(np.asarray(points).reshape(-1, 3).copy())
+            return _real(source, rays, lt, points, *args, **kw)
+
+        monkeypatch.setattr(module, "direct_irradiance", spy)
+    hits = []
+    real_near = gather_module._near_values
+
+    def near_spy(problem, near, cache, points, *args):
+        hits.append(np.asarray(points).copy())
+        return real_near(problem, near, cache, points, *args)
+
+    monkeypatch.setattr(gather_module, "_near_values", near_spy)
+    on_glow = np.array([[0.5, 0.5, 1.0], [0.2, 0.7, 1.0], [1.0, 0.4, 0.6]])  # top, top, the +x side
+    tri = np.array(
+        [
+            np.flatnonzero((o == 1) & np.isclose(s.corners[:, :, 2], 1.0).all(axis=1))[0],
+            np.flatnonzero((o == 1) & np.isclose(s.corners[:, :, 2], 1.0).all(axis=1))[1],
+            np.flatnonzero((o == 1) & np.isclose(s.corners[:, :, 0], 1.0).all(axis=1))[0],
+        ]
+    )
+    glow = radiance_at(problem, request, on_glow, tri, 1)
+    np.testing.assert_allclose(glow, L_e, rtol=1e-12)
+    assert not asked  # nothing asked at the emitter's own points
+    beside = np.array([[1.02, 0.5, 0.0], [1.3, 0.8, 0.0]])
+    floor = radiance_at(problem, request, beside, floor_triangles(s, beside), 1)
+    assert np.all(floor > 0.1) and np.all(np.isfinite(floor))
+
+    def on_block(p):
+        return np.all((p > -1e-6) & (p < 1 + 1e-6), axis=1) & (p[:, 2] > 1e-6)
+
+    assert np.sum(on_block(np.concatenate(hits))) > 10  # the floor points' near hits on the glow ...
+    assert not np.any(on_block(np.concatenate(asked)))  # ... asked no light
