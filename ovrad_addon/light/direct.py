@@ -18,10 +18,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..scene.surfaces import Surfaces, triangle_geometry
-from .emitters import EmitterSamples, emitter_samples, polygon_irradiance
+from .emitters import (
+    EmitterSamples,
+    emitter_samples,
+    emitting_triangles,
+    front_cosine,
+    polygon_irradiance,
+)
 from .lamps import Lamp, lamp_irradiance, shadow_origin
 from .sky import Sky, sky_irradiance
-from .tree import NEAR_EMITTER, LightTree, near_picked
+from .tree import LightTree, near_picked
+
+NEAR_EMITTER = 2.0  # a point closer to an emitting triangle's samples than this x their spacing
+# gets that triangle's light from its exact form factor (polygon_irradiance), not from the samples
 
 _CHUNK_RAYS = 1 << 20
 
@@ -93,7 +102,10 @@ def emitter_irradiance(
         omega = v / d[..., None]
         cos_r = np.einsum("rsk,rk->rs", omega, N)
         facing = np.einsum("rsk,sk->rs", omega, src.normals)  # its sign: which side of the emitter
-        cos_s = np.abs(facing)
+        if src.normal_cov is None:
+            cos_s = np.abs(facing)
+        else:
+            cos_s = front_cosine(facing, src.normal_length, src.normal_cov, omega)
         pair = (cos_r > 0) & (cos_s > 0) & (d2 > 0)
         # From just off the receiver to just off the emitter on the receiver's side: a ray aimed
         # at the sample itself would meet the emitter's own face short of it at grazing angles.
@@ -137,8 +149,9 @@ def _near_emitters(H, rs, P, N, src: EmitterSamples, d, g, pair, seen) -> None:
 
 
 class EmitterRules:
-    """The emitters' fixed rules of one Surfaces: emitter_samples() and its LightTree (None unless
-    samples are picked), made once per (emitters, samples, scale) for whoever keeps this object (a
+    """The emitters' fixed rules of one Surfaces: emitter_samples(), or for more emitting triangles
+    than samples a LightTree and its cut's samples, made once per (emitters, samples, scale) for
+    whoever keeps this object (a
     problem keeps one for its solve and bakes: a final gather asks for them at every chunk of its
     near hits, 408 times in the production room's vertex bake)."""
 
@@ -150,8 +163,13 @@ class EmitterRules:
         flags = np.asarray(emitters, bool)
         key = (len(flags), np.packbits(flags).tobytes(), int(samples), float(scale))
         if key not in self._made:
-            src = emitter_samples(self.surfaces, flags, samples, scale)
-            self._made[key] = (src, LightTree(src) if src.pick is not None and len(src.area) else None)
+            corners, radiance = emitting_triangles(self.surfaces, flags, scale)
+            if samples >= 1 and len(corners) >= samples:
+                # more triangles than samples: the light tree's cut (its far field) and its near field
+                tree = LightTree(corners, radiance, samples)
+                self._made[key] = (tree.samples, tree)
+            else:
+                self._made[key] = (emitter_samples(self.surfaces, flags, samples, scale), None)
         return self._made[key]
 
 
@@ -161,9 +179,9 @@ def rules_of(source: Surfaces | EmitterRules) -> EmitterRules:
 
 
 def picked(source: Surfaces | EmitterRules, emitters: np.ndarray, samples: int, scale: float = 1.0) -> bool:
-    """Whether `samples` emitter samples are picked on the power of more emitting triangles than
-    samples (the light tree then takes the near field of every point within NEAR_EMITTER of their
-    spacings: fewer samples spread them wider and widen that near field)."""
+    """Whether the emitters have more triangles than `samples`: their samples are then a light
+    tree's cut (light.tree.LightTree), whose near field every point within reach of a cut node
+    walks (fewer samples make larger nodes and widen that near field)."""
     return rules_of(source).rule(emitters, samples, scale)[0].pick is not None
 
 

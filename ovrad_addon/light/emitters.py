@@ -6,16 +6,19 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.special import ndtr
 
 from ..geometry import subtriangle_centroids
 from ..scene.surfaces import Surfaces, triangle_geometry
+
+SQRT_2PI = np.sqrt(2.0 * np.pi)
 
 
 @dataclass(frozen=True)
 class EmitterSamples:
     """A fixed quadrature of the emitting surfaces: points (k, 3), unit normals (k, 3), the area
-    each point stands for (k,), and its emitted radiance (k, 3) (of picked samples, scaled per
-    channel: emitter_samples)."""
+    each point stands for (k,), and its emitted radiance (k, 3) (of a light tree's cut: the radiance
+    that gives the node's power vector along its normal)."""
 
     points: np.ndarray
     normals: np.ndarray
@@ -29,61 +32,48 @@ class EmitterSamples:
     corners: np.ndarray | None = None
     triangle_radiance: np.ndarray | None = None
     spacing: np.ndarray | None = None
-    # samples picked on the power of more emitting triangles than samples: each one's triangle (k,),
-    # non-decreasing (a triangle's samples are one run); corners, triangle_radiance and spacing
-    # then hold every emitting triangle's
+    # the nodes of a light tree's cut, for more emitting triangles than samples (light.tree.LightTree):
+    # each one's central triangle (k,), the sample's place; corners and triangle_radiance then hold
+    # every emitting triangle's
     pick: np.ndarray | None = None
+    # a cut node's faces turn: the length (k,) of their mean unit normal and their normals'
+    # covariance (k, 6: xx, yy, zz, xy, xz, yz); a sample then lights a point by the faces facing
+    # it (front_cosine), not by its mean normal alone
+    normal_length: np.ndarray | None = None
+    normal_cov: np.ndarray | None = None
+
+
+def emitting_triangles(surfaces: Surfaces, emitters: np.ndarray, scale: float = 1.0):
+    """The corners (E, 3, 3) and radiance (E, 3) of the triangles among `emitters` ((T,) bool) that
+    emit some power."""
+    tri = np.flatnonzero(np.asarray(emitters, bool) & (surfaces.emission.sum(axis=1) > 0))
+    c = surfaces.corners[tri]
+    area, _ = triangle_geometry(c)
+    radiance = surfaces.emission[tri] * scale
+    keep = area * radiance.sum(axis=1) > 0
+    return c[keep], radiance[keep]
 
 
 def emitter_samples(
     surfaces: Surfaces, emitters: np.ndarray, count: int, scale: float = 1.0
 ) -> EmitterSamples:
-    """About `count` points over the emitting triangles, shared by every receiver point.
+    """About `count` points over the emitting triangles, shared by every receiver point, for
+    emitters of at most `count` triangles (more: light.tree.LightTree's cut).
 
     A fixed rule instead of random samples per receiver: neighbouring bake points see the same
     samples, so the result is smooth (no noise); its error is that of a midpoint rule. Each
     triangle gets points in proportion to its power, as the centroids of its k^2 congruent
-    sub-triangles; when there are more emitting triangles than points, `count` of them are
-    picked by systematic sampling on their power, each point standing for an equal power, its
-    colour scaled per channel so that the points emit the triangles' power in each channel.
+    sub-triangles.
     """
-    tri = np.flatnonzero(np.asarray(emitters, bool) & (surfaces.emission.sum(axis=1) > 0))
-    c = surfaces.corners[tri]
+    c, radiance = emitting_triangles(surfaces, emitters, scale)
     area, normal = triangle_geometry(c)
-    radiance = surfaces.emission[tri] * scale
     power = area * radiance.sum(axis=1)
-    keep = power > 0
-    c, normal, area, radiance, power = c[keep], normal[keep], area[keep], radiance[keep], power[keep]
     if len(c) == 0 or count < 1:
         z = np.zeros((0, 3))
         return EmitterSamples(z, z, np.zeros(0), z)
+    if len(c) > count:
+        raise ValueError(f"{len(c)} emitting triangles for {count} samples: use the light tree's cut")
     total = power.sum()
-    if len(c) >= count:
-        pick = np.searchsorted(np.cumsum(power) / total, (np.arange(count) + 0.5) / count)
-        pick = np.minimum(pick, len(c) - 1)
-        pts = c[pick].mean(axis=1)
-        # one sample stands for total / count of the power: on triangle t, for this much area (a dim
-        # triangle's at most what an even spread of the samples over the area would give it: its
-        # near field is as faint as its light, and the search for near triangles stays local)
-        spacing = np.minimum(np.sqrt(total / count / radiance.sum(axis=1)), np.sqrt(area.sum() / count))
-        weight = area[pick] * (total / count) / power[pick]
-        # picked on the power summed over the channels, the samples give a colour more or fewer
-        # samples than its share (a grid mesh is picked row by row, and the stride can keep landing
-        # in the same columns: 16 samples on a panel half red, half blue give one half up to 23 %
-        # too much light, the other too little); each channel is scaled so that the samples emit
-        # the emitters' power in it (a single-colour emitter's scale is 1)
-        sampled = weight @ radiance[pick]
-        scale_rgb = np.divide(area @ radiance, sampled, out=np.ones(3), where=sampled > 0)
-        return EmitterSamples(
-            pts,
-            normal[pick],
-            weight,
-            radiance[pick] * scale_rgb,
-            corners=c,
-            triangle_radiance=radiance,
-            spacing=spacing,
-            pick=pick,
-        )
     want = np.maximum(1, np.round(count * power / total)).astype(np.int64)
     side = np.ceil(np.sqrt(want)).astype(np.int64)
     pts, nrm, wts, rad, owner = [], [], [], [], []
@@ -166,3 +156,23 @@ def _unclipped_irradiance(r: np.ndarray, normals: np.ndarray) -> np.ndarray:
         gamma = np.arctan2(cn, np.einsum("kj,kj->k", a, b))
         total += np.where(cn > 0, gamma * np.einsum("kj,kj->k", c, normals) / np.maximum(cn, 1e-300), 0.0)
     return 0.5 * np.abs(total)
+
+
+def front_cosine(facing: np.ndarray, length: np.ndarray, cov: np.ndarray, omega: np.ndarray) -> np.ndarray:
+    """The mean over a node's faces of max(0, n . u) for u the direction to a point on the side its
+    mean normal faces, its faces' normals taken as normal about their mean: facing (r, s) the cosine
+    between the directions omega (r, s, 3) and the samples' unit normals, length (s,) the mean
+    normal's length, cov (s, 6) the normals' covariance. A flat node's is |facing|; a cap seen at
+    its rim still gets the light of the faces turned to the point (the mean normal alone cancels
+    them against the faces turned away, which a closed emitter hides)."""
+    mu = np.abs(facing) * length[None, :]
+    var = (
+        np.einsum("rsi,si,rsi->rs", omega, cov[:, :3], omega)
+        + 2.0 * np.einsum("rs,s->rs", omega[..., 0] * omega[..., 1], cov[:, 3])
+        + 2.0 * np.einsum("rs,s->rs", omega[..., 0] * omega[..., 2], cov[:, 4])
+        + 2.0 * np.einsum("rs,s->rs", omega[..., 1] * omega[..., 2], cov[:, 5])
+    )
+    sigma = np.sqrt(np.maximum(var, 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.where(sigma > 0, mu / sigma, np.inf)
+    return np.where(sigma > 0, mu * ndtr(z) + sigma * np.exp(-0.5 * np.minimum(z, 1e3) ** 2) / SQRT_2PI, mu)

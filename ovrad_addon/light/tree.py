@@ -1,5 +1,7 @@
-"""The light tree of emitters picked on power: nodes of nearby emitting triangles taken as one point
-where far enough, the near ones by their exact form factor (near_picked)."""
+"""The light tree of emitters of more triangles than samples: its cut of nodes of equal power is
+every point's far field (one sample per node), and a point near a node walks its subtree, nodes
+taken as one point where far enough, the nearest triangles by their exact form factor
+(near_picked)."""
 
 from __future__ import annotations
 
@@ -10,10 +12,7 @@ from ..scene.surfaces import triangle_geometry
 from .emitters import EmitterSamples, polygon_irradiance
 from .lamps import shadow_origin
 
-NEAR_EMITTER = 2.0  # a point closer to an emitting triangle's samples than this x their spacing
-# gets that triangle's light from its exact form factor (polygon_irradiance), not from the samples
-NEAR_EXACT = 4.0  # ... or, picked samples (near_picked), a node of the light tree as one point this x its
-# radius away
+NEAR_EXACT = 4.0  # near_picked takes a node of the light tree as one point this x its radius away
 
 NEAR_POINTS = 1 << 13  # points whose near emitters near_picked finds at once (memory: their frontier)
 
@@ -28,24 +27,40 @@ def _first_max_in_runs(values: np.ndarray, first: np.ndarray) -> np.ndarray:
     return hit[np.r_[True, seg[hit][1:] != seg[hit][:-1]]]
 
 
-class LightTree:
-    """The emitting triangles of picked samples as a binary tree (a light hierarchy), for
-    near_picked. Level l has 2^l nodes, each a range [lo, hi) of the triangles in tree order; node
-    j's children are 2j and 2j + 1 a level down (a single triangle's: itself and an empty range).
-    Each node holds its area-weighted centroid, bounding radius, its triangles' centroids' spread
-    about it, the least and greatest reach of their near fields (their size + NEAR_EMITTER x their
-    samples' spacing), its bounding box, a normal axis and how far from it a direction must be for
-    every face to be seen from one side (from its cone: the least cosine of a triangle's normal,
-    turned to the axis's side, with it), its second moment of area, the power vector per colour
-    (sum of area x radiance x turned normal: one dot product gives a far flat node's light), the
-    triangle nearest its centroid (a shadow ray's target) and its samples' range in `sample_order`.
-    Fewer than 4 x triangles nodes, 288 bytes each (about 1.2 kB per emitting triangle); built once
-    per emitter rule, a level at a time (a sort within each node along its longest side)."""
+CUT_CONES = (0.9, 0.7, 0.5, -1.0)  # the cut's nodes have normals within acos(the first of these
+# that leaves at most CUT_MOST x the samples asked) of their axis
 
-    def __init__(self, src: EmitterSamples):
-        c = src.corners
+CUT_MOST = 4
+
+CUT_REACH = 4.0  # a point nearer a cut node's triangles than this x the node's radius walks its subtree
+
+
+class LightTree:
+    """The emitting triangles (corners (n, 3, 3), radiance (n, 3)) as a binary tree (a light
+    hierarchy), cut into about `count` nodes of equal power whose one-point light is every point's
+    far field (`samples`), the near field walked by near_picked. Level l has 2^l nodes, each a range
+    [lo, hi) of the triangles in tree order; node j's children are 2j and 2j + 1 a level down (a
+    single triangle's: itself and an empty range). Each node holds its area-weighted centroid,
+    bounding radius, its triangles' centroids' spread about it, the least and greatest reach of their
+    near fields (their size + CUT_REACH x their cut node's radius), its bounding box, a normal axis
+    and how far from it a direction must be for every face to be seen from one side (from its cone:
+    the least cosine of a triangle's normal, turned to the axis's side, with it), its second moment
+    of area, its cone and area, the power vector per colour (sum of area x radiance x turned normal:
+    one dot product gives a far flat node's light), the triangle nearest its centroid (a shadow
+    ray's target) and its samples' range in `sample_order` (empty under the cut).
+
+    The cut: the nodes of at most the power of a share of the total, split further while their
+    normals stray too far from their axis (CUT_CONES); each is one sample at its central triangle's
+    centroid with its power vector (a curved emitter's far light is then the sum of its pieces'
+    projected areas, not a quadrature of single triangles facing every way: a sphere of 4 000
+    triangles seen from 400 directions, 64 samples, 2.6 % RMS against 4.6 % with 64 picked
+    triangles). Fewer than 4 x triangles nodes, about 1.2 kB per emitting triangle; built once per
+    emitter rule, a level at a time (a sort within each node along its longest side)."""
+
+    def __init__(self, corners: np.ndarray, radiance: np.ndarray, count: int):
+        c = np.asarray(corners, np.float64)
         n = len(c)
-        self.corners, self.radiance = c, src.triangle_radiance
+        self.corners, self.radiance = c, np.asarray(radiance, np.float64)
         centroid = c.mean(axis=1)
         size = np.linalg.norm(c - centroid[:, None], axis=2).max(axis=1)
         area, normal = triangle_geometry(c)
@@ -66,15 +81,14 @@ class LightTree:
             ranges.append((lo, hi))
         rank = np.empty(n, np.int64)
         rank[order] = np.arange(n)
-        at = rank[src.pick]
-        self.sample_order = np.argsort(at, kind="stable")
-        at = at[self.sample_order]
-        cen, a, nrm, rad = centroid[order], area[order], normal[order], src.triangle_radiance[order]
-        size, reach = size[order], size[order] + NEAR_EMITTER * src.spacing[order]
+        cen, a, nrm, rad = centroid[order], area[order], normal[order], self.radiance[order]
+        size = size[order]
         corner_lo, corner_hi = c[order].min(axis=1), c[order].max(axis=1)
         spoke = c[order] - cen[:, None]
         own = np.einsum("tci,tci->ti", spoke[:, :, _PAIRS[0]], spoke[:, :, _PAIRS[1]]) / 12.0
-        self.levels = []  # per level: floats (k, 23) (columns: _F), ints (k, 4) (_I), power (k, 3, 3)
+        flux_t = a * rad.sum(axis=1)
+        self.levels = []  # per level: floats (k, 25) (columns: _F), ints (k, 4) (_I), power (k, 3, 3)
+        fluxes = []
         for lo, hi in ranges:
             full = np.flatnonzero(hi > lo)
             first = lo[full]
@@ -98,32 +112,122 @@ class LightTree:
             # triangle's centroid offset, plus its own (1/12 of the sum of its corners' offsets squared)
             moment = a[:, None] * (off[:, _PAIRS[0]] * off[:, _PAIRS[1]] + own)
             moment = np.add.reduceat(moment, first, axis=0) / area_sum[:, None]
-            F = np.zeros((len(lo), 23))
+            # the turned normals' mean vector (its length under 1 on a curved node) and second moment
+            mean_n = np.add.reduceat(turned * a[:, None], first, axis=0) / area_sum[:, None]
+            nn = np.add.reduceat(turned[:, _PAIRS[0]] * turned[:, _PAIRS[1]] * a[:, None], first, axis=0)
+            nn /= area_sum[:, None]
+            F = np.zeros((len(lo), 34))
             F[full] = np.column_stack(
                 [
                     C,
                     np.maximum.reduceat(spread, first),
                     np.maximum.reduceat(spread + size, first),
-                    np.minimum.reduceat(reach, first),
-                    np.maximum.reduceat(reach, first),
+                    np.zeros((len(full), 2)),  # the reaches, once the cut is known
                     (box_lo + box_hi) / 2,
                     (box_hi - box_lo) / 2,
                     axis,
                     one_side,
                     moment,
+                    cone,
+                    area_sum,
+                    mean_n,
+                    nn,
                 ]
             )
             I = np.zeros((len(lo), 4), np.int64)  # noqa: E741
             I[:, 0] = hi - lo
             I[full, 1] = order[_first_max_in_runs(-spread, first)]
-            I[:, 2], I[:, 3] = np.searchsorted(at, lo), np.searchsorted(at, hi)
             power = np.zeros((len(lo), 3, 3))
             power[full] = np.add.reduceat((a[:, None] * rad)[:, :, None] * turned[:, None, :], first, axis=0)
             self.levels.append((F, I, power))
+            flux = np.zeros(len(lo))
+            flux[full] = np.add.reduceat(flux_t, first)
+            fluxes.append(flux)
+        self.state = _cut(self.levels, fluxes, count)
+        # the samples: one per cut node, in tree order
+        picked = [np.flatnonzero(st == CUT) for st in self.state]
+        F_c = np.concatenate([F[k] for (F, _, _), k in zip(self.levels, picked, strict=True)])
+        I_c = np.concatenate([ints[k] for (_, ints, _), k in zip(self.levels, picked, strict=True)])
+        P_c = np.concatenate([p[k] for (_, _, p), k in zip(self.levels, picked, strict=True)])
+        lo_c = np.concatenate([r[0][k] for r, k in zip(ranges, picked, strict=True)])
+        hi_c = np.concatenate([r[1][k] for r, k in zip(ranges, picked, strict=True)])
+        rep = I_c[:, _I["rep"]]
+        mean_n = F_c[:, _F["mean_normal"]]
+        length = np.linalg.norm(mean_n, axis=1)
+        unit = np.where((length > 0)[:, None], mean_n / np.maximum(length, 1e-300)[:, None], normal[rep])
+        area_c = F_c[:, _F["area"]]
+        cov = F_c[:, _F["normal_moment"]] - mean_n[:, _PAIRS[0]] * mean_n[:, _PAIRS[1]]
+        self.samples = EmitterSamples(
+            centroid[rep],
+            unit,
+            area_c,
+            # the radiance whose light along the mean normal is the node's power vector's
+            np.einsum("kcj,kj->kc", P_c, unit) / np.maximum(area_c * length, 1e-300)[:, None],
+            corners=c,
+            triangle_radiance=self.radiance,
+            pick=rep,
+            normal_length=length,
+            normal_cov=cov,
+        )
+        # each triangle's reach: its size + CUT_REACH x its cut node's radius
+        radius_t = np.zeros(n)
+        radius_t[ranges_flat(lo_c, hi_c - lo_c)] = np.repeat(F_c[:, _F["radius"]], hi_c - lo_c)
+        reach = size + CUT_REACH * radius_t
+        at = np.sort(lo_c)  # each sample's place in tree order: its node's first triangle
+        self.sample_order = np.argsort(lo_c, kind="stable")
+        for (F, I, _), (lo, hi), st in zip(self.levels, ranges, self.state, strict=True):  # noqa: E741
+            full = np.flatnonzero(hi > lo)
+            F[full, _F["reach_min"]] = np.minimum.reduceat(reach, lo[full])
+            F[full, _F["reach_max"]] = np.maximum.reduceat(reach, lo[full])
+            I[:, 2], I[:, 3] = np.searchsorted(at, lo), np.searchsorted(at, hi)
+            I[st == BELOW, 3] = I[st == BELOW, 2]  # under the cut a node has no samples of its own
+
+
+ABOVE, CUT, BELOW = 0, 1, 2  # a node's place against the cut (LightTree.state)
+
+
+def _cut(levels, fluxes, count: int) -> list[np.ndarray]:
+    """Each level's nodes' place against the cut of about `count` nodes: the nodes of flux at most
+    tau and normals within acos(cone) of their axis whose parent is neither, or single triangles
+    above them; tau the largest that leaves at least `count` nodes (or the fewest there can be),
+    cone the first of CUT_CONES that leaves at most CUT_MOST x count (a sphere's cut has its
+    normals within 26 degrees: 60 samples, whatever was asked)."""
+
+    def states(tau: float, cone: float) -> list[np.ndarray]:
+        out, parent = [], None
+        for (F, I, _), flux in zip(levels, fluxes, strict=True):  # noqa: E741
+            count_l = I[:, _I["count"]]
+            free = np.ones(len(flux), bool) if parent is None else parent[np.arange(len(flux)) // 2] == ABOVE
+            small = (flux <= tau) & (F[:, _F["cone"]] >= cone)
+            cut = free & (count_l > 0) & (small | (count_l == 1))
+            st = np.where(free & (count_l > 0), np.where(cut, CUT, ABOVE), BELOW)
+            out.append(st)
+            parent = st
+        return out
+
+    def size(st) -> int:
+        return sum(int(np.sum(s == CUT)) for s in st)
+
+    candidates = np.unique(np.concatenate(fluxes))
+    for cone in CUT_CONES:
+        fewest = states(candidates[-1], cone)
+        if size(fewest) <= CUT_MOST * count:
+            break
+    if size(fewest) >= count:
+        return fewest
+    lo, hi = 0, len(candidates) - 1  # the cut shrinks as tau grows
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if size(states(candidates[mid], cone)) >= count:
+            lo = mid
+        else:
+            hi = mid
+    return states(candidates[lo], cone)
 
 
 # columns of a LightTree level's floats and ints
 _F = {"centroid": slice(0, 3), "spread": 3, "radius": 4, "reach_min": 5, "reach_max": 6}
+_F |= {"cone": 23, "area": 24, "mean_normal": slice(25, 28), "normal_moment": slice(28, 34)}
 
 _F |= {"box_mid": slice(7, 10), "box_half": slice(10, 13), "axis": slice(13, 16), "one_side": 16}
 _F["moment"] = slice(17, 23)
@@ -155,16 +259,15 @@ def second_order(moment: np.ndarray, u: np.ndarray, a: np.ndarray, b: np.ndarray
 
 
 def near_picked(H, rs, P, N, src: EmitterSamples, tree: LightTree, g, rays, eps: float) -> int:
-    """_near_emitters for samples picked on the power of more triangles than samples (a subdivided
-    panel, an emissive mesh): the emitting triangles within NEAR_EMITTER sample spacings of a point
-    give their own light in place of what the samples picked on them gave. Walking the light tree,
-    a node of them farther than NEAR_EXACT x its radius, wholly above the point's horizon and flat
-    enough that the point sees all its faces from one side, gives its light as one point (its power
-    vector, corrected to second order for its extent: second_order); a node wholly under the
-    horizon gives none; a single triangle nearer than that, its exact unoccluded light (Lambert's
-    contour);
-    each x whether the point sees the node's central triangle's centroid (one shadow ray). Points
-    go in blocks of NEAR_POINTS. Returns the rays cast."""
+    """The near field of a light tree's cut (`src`: its samples; g (m, k) their geometric terms at
+    the points, as emitter_irradiance added them to H): a point within reach of a cut node's
+    triangles (CUT_REACH x the node's radius past them) gets that node's light from its subtree in
+    place of its sample's. Walking the tree, a node farther than NEAR_EXACT x its radius, wholly
+    above the point's horizon and flat enough that the point sees all its faces from one side,
+    gives its light as one point (its power vector, corrected to second order for its extent:
+    second_order); a node wholly under the horizon gives none; a single triangle nearer than that,
+    its exact unoccluded light (Lambert's contour); each x whether the point sees the node's central
+    triangle's centroid (one shadow ray). Points go in blocks of NEAR_POINTS. Returns the rays cast."""
     cast = 0
     for b0 in range(0, len(P), NEAR_POINTS):
         block = np.arange(b0, min(len(P), b0 + NEAR_POINTS))
@@ -177,7 +280,7 @@ def _near_block(H, rs, P, N, src: EmitterSamples, tree: LightTree, g, rays, eps,
     (a frontier of (point, node) pairs), then one batch of shadow rays."""
     i, j = block, np.zeros(len(block), np.int64)
     found = []  # per level: points, irradiance (., 3), central triangle, samples' range
-    for F, I, power in tree.levels:  # noqa: E741
+    for (F, I, power), state in zip(tree.levels, tree.state, strict=True):  # noqa: E741
         ints = I[j]
         live = ints[:, _I["count"]] > 0
         if not live.all():
@@ -190,6 +293,12 @@ def _near_block(H, rs, P, N, src: EmitterSamples, tree: LightTree, g, rays, eps,
         spread, radius = f[:, _F["spread"]], f[:, _F["radius"]]
         near = d + spread < f[:, _F["reach_min"]]
         far = d - spread >= f[:, _F["reach_max"]]
+        # a cut node within reach takes its sample's light back and has its whole subtree walked:
+        # under it every node is near (its light comes from here, not from a sample)
+        st = state[j]
+        cut_near = (st == CUT) & ~far
+        near |= cut_near | (st == BELOW)
+        far &= st != BELOW
         single = ints[:, _I["count"]] == 1
         rep = ints[:, _I["rep"]]
         height = np.einsum("ij,ij->i", v, Ni)
@@ -221,8 +330,13 @@ def _near_block(H, rs, P, N, src: EmitterSamples, tree: LightTree, g, rays, eps,
             E[p] *= np.clip(np.nan_to_num(1.0 + fix, nan=1.0), 0.0, 2.0)[:, None]
         q = np.flatnonzero(contour)
         E[q] = polygon_irradiance(Pi[q], Ni[q], tree.corners[rep[q]])[:, None] * tree.radiance[rep[q]]
-        done = np.flatnonzero(point | contour)
+        done = point | contour
+        # a cut node walked further gives back its sample's light here (no light of its own)
+        back = np.flatnonzero(cut_near & ~done & ~far)
+        done = np.flatnonzero(done)
         found.append((i[done], E[done], rep[done], ints[done, _I["s_lo"]], ints[done, _I["s_hi"]]))
+        if len(back):
+            found.append((i[back], np.zeros((len(back), 3)), rep[back], ints[back, 2], ints[back, 3]))
         down = ~far
         down[done] = False
         i, j = np.repeat(i[down], 2), (2 * j[down, None] + [0, 1]).ravel()

@@ -1,13 +1,12 @@
-"""Emitters of several colours whose samples are picked on power (light/emitters.py): each channel's
-light against Lambert's closed form, per colour region."""
+"""Emitters of several colours and of more triangles than samples (the light tree's cut,
+light/tree.py): each channel's light against Lambert's closed form, per colour region."""
 
 import numpy as np
 import pytest
 from reference import analytic
 
 import scenes
-from ovrad_addon.light.direct import emitter_irradiance
-from ovrad_addon.light.emitters import emitter_samples
+from ovrad_addon.light.direct import EmitterRules, emitter_irradiance
 from ovrad_addon.scene.rays import make_rays
 from ovrad_addon.scene.surfaces import Surfaces
 
@@ -53,17 +52,22 @@ def test_each_channel_of_a_two_colour_panel_picked_on_power(cells, samples, tol)
 
 
 @pytest.mark.parametrize("samples", [16, 64])
-def test_picked_samples_emit_each_channels_power(samples):
-    # the panel's power per channel: 0.25 m^2 of each colour
-    src = emitter_samples(two_colour_panel(32), np.ones(2 * 32 * 32, bool), samples)
-    assert src.pick is not None
-    emitted = src.area @ src.radiance
+def test_the_cuts_samples_emit_each_channels_power(samples):
+    # the panel's power per channel: 0.25 m^2 of each colour; a flat node's samples carry it whole
+    src, tree = EmitterRules(two_colour_panel(32)).rule(np.ones(2 * 32 * 32, bool), samples, 1.0)
+    assert tree is not None and src.pick is not None
+    assert len(src.area) >= samples
+    emitted = (src.area * src.normal_length) @ src.radiance
     assert np.allclose(emitted, 0.25 * (RED + BLUE), rtol=1e-12)
 
 
-def test_picked_samples_of_one_colour_carry_it():
+def test_the_cuts_samples_of_one_colour_carry_it():
     v, t = scenes.plane(1.0, 20)
-    src = emitter_samples(Surfaces.from_arrays(v, t, emission=[2.0, 1.0, 0.5]), np.ones(len(t), bool), 64)
+    rules = EmitterRules(Surfaces.from_arrays(v, t, emission=[2.0, 1.0, 0.5]))
+    src, _ = rules.rule(np.ones(len(t), bool), 64, 1.0)
     assert src.pick is not None
     assert np.allclose(src.radiance, [2.0, 1.0, 0.5], rtol=1e-12, atol=0)
-    assert np.allclose(src.area, 1.0 / 64, rtol=1e-12)
+    # 800 equal triangles: a cut of 64 to 127 nodes of equal power, 1 m^2 in all
+    assert 64 <= len(src.area) < 128
+    np.testing.assert_allclose(src.area.sum(), 1.0, rtol=1e-12)
+    assert np.ptp(src.area) <= src.area.max() / 2

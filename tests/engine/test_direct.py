@@ -27,10 +27,11 @@ RHO = 0.8
 
 
 def near_emitter(monkeypatch, value: float) -> None:
-    """Set NEAR_EMITTER where it is read: the near field of the samples (light/direct.py) and the reach
-    of the light tree's nodes (tree.py)."""
+    """Set the near field's reach in sample spacings: NEAR_EMITTER for the samples of each triangle
+    (light/direct.py), and the reach of the light tree's cut nodes in their radii (tree.CUT_REACH,
+    twice that: 4 by default; 0: no node is near, its samples alone)."""
     monkeypatch.setattr(direct, "NEAR_EMITTER", value)
-    monkeypatch.setattr(tree, "NEAR_EMITTER", value)
+    monkeypatch.setattr(tree, "CUT_REACH", 2.0 * value if value > 0 else -1e30)
 
 
 def _emitter_over_plane(flip: bool):
@@ -198,10 +199,10 @@ def test_only_emitters_with_patches_are_shot():
         assert int(direct_light(problem).emitters.sum()) == expected
 
 
-def test_an_emitter_of_more_triangles_than_samples_is_picked_by_power():
-    # A 1 m square emitter as 800 triangles, 0.5 m above the points: with 64 or 256 samples the
-    # rule picks that many triangle centroids (systematic sampling on power), each standing for
-    # an equal share; with 1 024 every triangle gets its own point.
+def test_an_emitter_of_more_triangles_than_samples_is_cut_from_its_light_tree():
+    # A 1 m square emitter as 800 triangles, 0.5 m above the points: with 16 to 256 samples its
+    # light tree's cut of that many nodes of equal power gives one sample each (a few points within
+    # reach of a node walk its subtree); with 1 024 every triangle gets its own point.
     pv, pt = scenes.plane(size=1.0, n=20, z=0.5)
     s = Surfaces.from_arrays(pv - [0.5, 0.5, 0.0], pt, emission=[1.0, 1.0, 1.0])
     rect = np.array([[-0.5, -0.5, 0.5], [0.5, -0.5, 0.5], [0.5, 0.5, 0.5], [-0.5, 0.5, 0.5]])
@@ -211,12 +212,13 @@ def test_an_emitter_of_more_triangles_than_samples_is_picked_by_power():
     nrm = np.tile([0.0, 0.0, 1.0], (200, 1))
     exact = np.pi * analytic.ff_point_to_polygon(pts, nrm, rect)
     rays = make_rays(s.vertices, s.triangles)
-    # measured worst point: 6.8 %, 1.3 %, 0.12 %; the total within 0.16 %
-    for samples, worst in ((64, 0.08), (256, 0.02), (1024, 2e-3)):
+    # measured worst point: 4.3 %, 2.1 %, 0.83 %, 0.12 % (picked triangle centroids gave 30 %, 6.8 %,
+    # 1.3 %); the total within 0.3 %
+    for samples, worst in ((16, 0.06), (64, 0.03), (256, 0.012), (1024, 2e-3)):
         H, cast = emitter_irradiance(s, rays, np.ones(len(pt), bool), pts, nrm, samples)
-        assert cast == 200 * min(samples, len(pt))
+        assert 200 * min(samples, len(pt)) <= cast < 2 * 200 * min(samples, len(pt))
         assert np.abs(H[:, 0] / exact - 1.0).max() < worst
-        assert abs(H[:, 0].sum() / exact.sum() - 1.0) < 2e-3
+        assert abs(H[:, 0].sum() / exact.sum() - 1.0) < 3e-3
 
 
 def test_the_first_shots_budget_keeps_picked_emitter_samples():
@@ -278,7 +280,7 @@ def test_points_close_to_an_emitter_of_more_triangles_than_samples_get_its_exact
     pts[:, :2] = rng.uniform(-0.45, 0.45, size=(200, 2))
     nrm = np.tile([0.0, 0.0, side], (200, 1))
     worst = {}
-    for near in (tree.NEAR_EMITTER, 0.0):
+    for near in (direct.NEAR_EMITTER, 0.0):
         near_emitter(monkeypatch, near)
         for h in (1e-3, 1e-2, 5e-2):
             pts[:, 2] = 0.5 - side * h
@@ -560,3 +562,37 @@ def test_a_jittered_area_lamp_rule_averages_to_the_exact_penumbra(half_shadowed_
     rel = got / full - 1.0
     assert np.abs(rel).max() < 0.08 and np.sqrt(np.mean(rel**2)) < 0.03
     assert abs(got.mean() / full.mean() - 1.0) < 0.002
+
+
+@pytest.mark.parametrize("samples", [16, 64])
+def test_a_glowing_spheres_far_light_comes_from_its_light_trees_cut(samples):
+    """A glowing icosphere (1 280 triangles) seen from 3 to 15 radii away, beyond its cut nodes'
+    reach: each cut node is one sample with its power vector and the spread of its normals
+    (emitters.front_cosine), against the sum of Lambert's contour integral over the faces each point
+    sees. Triangle centroids picked on power (the rule before the cut) measured 67 % RMS with 16
+    samples and 73 % with 64 here (the picks fall in clusters along this mesh's triangle order), and
+    4.6 % with 64 on a UV sphere; the cut keeps its normals within 26 degrees of their axis whatever
+    was asked (56 shadow rays a point where 16 samples are asked)."""
+    s = scenes.sphere(1.0, 3)
+    s = Surfaces.from_arrays(s.vertices, s.triangles, emission=[1.0, 1.0, 1.0])
+    rays = make_rays(s.vertices, s.triangles)
+    src, cut = direct.EmitterRules(s).rule(np.ones(len(s.triangles), bool), samples, 1.0)
+    assert cut is not None and samples <= len(src.area) <= tree.CUT_MOST * samples
+    rng = np.random.default_rng(17)
+    toward = rng.normal(size=(300, 3))
+    toward /= np.linalg.norm(toward, axis=1, keepdims=True)
+    pts = rng.uniform(3.0, 15.0, (300, 1)) * toward
+    nrm = -toward
+    c = s.corners
+    outward = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
+    exact = np.zeros(len(pts))
+    for k in range(len(pts)):
+        sees = np.einsum("ij,ij->i", pts[k] - c[:, 0], outward) > 0
+        at = np.tile(pts[k], (sees.sum(), 1))
+        exact[k] = polygon_irradiance(at, np.tile(nrm[k], (sees.sum(), 1)), c[sees]).sum()
+    H, cast = emitter_irradiance(s, rays, np.ones(len(c), bool), pts, nrm, samples)
+    assert cast < 2 * len(pts) * len(src.area)  # the cut's samples, hardly any near field
+    ratio = H[:, 0] / exact
+    # measured: 1.5 / 1.2 % RMS, 3.4 / 2.9 % at worst (16 / 64 samples)
+    assert np.sqrt(np.mean((ratio - 1.0) ** 2)) < 0.02
+    assert np.abs(ratio - 1.0).max() < 0.05
