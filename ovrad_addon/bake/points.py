@@ -88,16 +88,17 @@ class BakeRequest:
     corner_cache: dict | None = None
 
 
-def _at_points(problem: Problem, request: BakeRequest, points, triangles, sides, lit=None):
+def _at_points(problem: Problem, request: BakeRequest, points, triangles, sides, lit=None, alpha=None):
     """What both reconstructions need at surface points: triangles (m,), alpha (m, n), the
     coefficients the patches reconstruct, and the direct irradiance (m, 3) computed at the points
     where the solve's first shot is split off (else None). lit (m,) bool: the points whose
-    irradiance is asked; the others get 0 and cast no rays (None: all)."""
+    irradiance is asked; the others get 0 and cast no rays (None: all). alpha: the points' alpha
+    when the caller has it."""
     radiosity, first_shot, light = request.radiosity, request.first_shot, request.light
     tri = np.asarray(triangles, np.int64)
     pts = np.asarray(points, np.float64).reshape(-1, 3)
     side = np.broadcast_to(np.asarray(sides), tri.shape)
-    a = alpha_at(problem.atlas, problem.index, problem.contacts, pts, tri, side)
+    a = alpha_at(problem.atlas, problem.index, problem.contacts, pts, tri, side) if alpha is None else alpha
     if first_shot is None or light is None:
         return tri, a, radiosity, None
     if first_shot.shape != radiosity.shape:
@@ -185,11 +186,13 @@ def radiance_at(problem: Problem, request: BakeRequest, points, triangles, sides
     one) times the irradiance there.
     """
     surfaces = problem.surfaces
-    albedo = surfaces.reflectance_at(
-        np.asarray(triangles, np.int64), np.asarray(points, np.float64).reshape(-1, 3)
-    )
+    tri = np.asarray(triangles, np.int64)
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    side = np.broadcast_to(np.asarray(sides), tri.shape)
+    a = alpha_at(problem.atlas, problem.index, problem.contacts, pts, tri, side)
+    albedo = surfaces.reflectance_at(tri, pts)
     # a surface that reflects nothing (an Emission shader, a black texel, a metal) needs no light
-    tri, a, coeffs, H = _at_points(problem, request, points, triangles, sides, np.any(albedo > 0, axis=1))
+    tri, a, coeffs, H = _at_points(problem, request, pts, tri, side, np.any(albedo > 0, axis=1), a)
     out = reconstruct(a, coeffs)
     textured = surfaces.textured(tri)
     if np.any(textured):

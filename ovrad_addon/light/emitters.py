@@ -108,7 +108,7 @@ def polygon_irradiance(points: np.ndarray, normals: np.ndarray, triangles: np.nd
     """Irradiance (k,) at points (k, 3) with unit normals (k, 3) from triangles (k, 3, 3) of unit
     radiance emitting from both sides, unoccluded: (1/2) |sum over edges gamma_i n . c_i| (Lambert's
     contour integral, pi x the form factor) over the part of the triangle above the point's plane."""
-    h = np.einsum("kcj,kj->kc", triangles - points[:, None], normals)
+    h = plane_heights(triangles - points[:, None], normals)
     whole = h.min(axis=1) > 0
     if whole.all():
         return _unclipped_irradiance(triangles - points[:, None], normals)
@@ -143,6 +143,18 @@ def polygon_irradiance(points: np.ndarray, normals: np.ndarray, triangles: np.nd
             use & (cn > 0), gamma * np.einsum("kj,kj->k", c, normals) / np.maximum(cn, 1e-300), 0.0
         )
     return 0.5 * np.abs(total)
+
+
+PLANE_TOLERANCE = 1e-9  # a corner this close to a point's plane (relative to its distance) lies in it
+
+
+def plane_heights(r: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """Heights (k, 3) over the points' planes of triangles' corners given less the points (k, 3, 3),
+    those within PLANE_TOLERANCE of their distance made 0: a point's own triangle then lies in its
+    plane and sends it nothing (its corners' rounding error, +4e-17, read it as wholly above the
+    point, which its contour then wholly surrounds: the light of a whole hemisphere, pi)."""
+    h = np.einsum("kcj,kj->kc", r, normals)
+    return np.where(np.abs(h) <= PLANE_TOLERANCE * np.linalg.norm(r, axis=2), 0.0, h)
 
 
 def _unclipped_irradiance(r: np.ndarray, normals: np.ndarray) -> np.ndarray:

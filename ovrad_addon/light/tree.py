@@ -9,7 +9,7 @@ import numpy as np
 
 from ..geometry import ranges_flat
 from ..scene.surfaces import triangle_geometry
-from .emitters import EmitterSamples, polygon_irradiance
+from .emitters import EmitterSamples, plane_heights, polygon_irradiance
 from .lamps import shadow_origin
 
 NEAR_EXACT = 4.0  # near_picked takes a node of the light tree as one point this x its radius away
@@ -310,7 +310,7 @@ def _near_block(H, rs, P, N, src: EmitterSamples, tree: LightTree, g, rays, eps,
         above = (height > radius) | (box > half)
         under = (height < -radius) | (box < -half)
         one = np.flatnonzero(single & near)
-        h = np.einsum("kcj,kj->kc", tree.corners[rep[one]] - Pi[one][:, None], Ni[one])
+        h = plane_heights(tree.corners[rep[one]] - Pi[one][:, None], Ni[one])
         above[one], under[one] = h.min(axis=1) > 0, h.max(axis=1) <= 0
         far |= under
         near &= ~under
