@@ -27,7 +27,7 @@ from .emitters import (
 )
 from .lamps import Lamp, lamp_irradiance, shadow_origin
 from .sky import Sky, sky_irradiance
-from .tree import LightTree, near_picked
+from .tree import LightTree, near_picked, second_order
 
 NEAR_EMITTER = 2.0  # a point closer to an emitting triangle's samples than this x their spacing
 # gets that triangle's light from its exact form factor (polygon_irradiance), not from the samples
@@ -120,12 +120,29 @@ def emitter_irradiance(
         # the unblocked pairs' geometric terms as a dense (points, samples) matrix: one product sums
         # them per point (np.add.at per pair was a fifth of a production room's near-field time)
         g = np.where(seen > 0, cos_r * cos_s / np.maximum(d2, 1e-300) * src.area[None, :] * seen, 0.0)
+        if src.moment is not None:
+            g *= _extent(src, P, N, g > 0)
         H[rs] += g @ src.radiance
         if src.run_start is not None:
             _near_emitters(H, rs, P, N, src, d, g, pair, seen)
         elif near is not None:
             cast += near_picked(H, rs, P, N, src, near, g, rays, eps)
     return H, cast
+
+
+def _extent(src: EmitterSamples, P, N, lit) -> np.ndarray:
+    """(r, s) the second-order correction of a light tree cut's samples for their nodes' extent
+    (light.tree.second_order) where lit, 1 elsewhere."""
+    out = np.ones(lit.shape)
+    r, k = np.nonzero(lit)
+    if len(r) == 0:
+        return out
+    u = src.centre[k] - P[r]
+    axis = src.normals[k] * np.where(np.einsum("ij,ij->i", src.normals[k], u) < 0, -1.0, 1.0)[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        fix = second_order(src.moment[k], u, N[r], axis)
+    out[r, k] = np.clip(np.nan_to_num(1.0 + fix, nan=1.0), 0.0, 2.0)
+    return out
 
 
 def _near_emitters(H, rs, P, N, src: EmitterSamples, d, g, pair, seen) -> None:

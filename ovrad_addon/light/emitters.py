@@ -41,6 +41,10 @@ class EmitterSamples:
     # it (front_cosine), not by its mean normal alone
     normal_length: np.ndarray | None = None
     normal_cov: np.ndarray | None = None
+    # ... and each node's centroid (k, 3) and second moment of area about it (k, 6): a sample's
+    # light is corrected to second order for its node's extent (light.tree.second_order)
+    centre: np.ndarray | None = None
+    moment: np.ndarray | None = None
 
 
 def emitting_triangles(surfaces: Surfaces, emitters: np.ndarray, scale: float = 1.0):

@@ -35,10 +35,10 @@ def points_below(depth: float) -> tuple[np.ndarray, np.ndarray]:
 
 @pytest.mark.parametrize(("cells", "samples", "tol"), [(16, 16, 0.015), (32, 16, 0.015), (32, 64, 0.005)])
 def test_each_channel_of_a_two_colour_panel_picked_on_power(cells, samples, tol):
-    # Picked row by row on the summed power, one half gets more samples than its share: unscaled,
-    # red +10 % / blue -12 % (16 cells, 16 samples), +23 / -22 % (32, 16), +3.0 / -2.7 % (32, 64)
-    # summed over these points; with each channel scaled to its power, within 1.2 %, 0.8 % and
-    # 0.2 % in every channel (the rule's error at 4 m, the same in all three).
+    # Triangles picked row by row on the summed power gave one half more samples than its share
+    # (unscaled: red +10 % / blue -12 % with 16 cells and 16 samples, +23 / -22 % with 32, 16);
+    # the light tree's cut splits the panel by space, and each node's power vector carries each
+    # channel's power.
     s = two_colour_panel(cells)
     emitting = np.ones(len(s.triangles), bool)
     assert len(s.triangles) > samples  # picked

@@ -29,7 +29,7 @@ RHO = 0.8
 def near_emitter(monkeypatch, value: float) -> None:
     """Set the near field's reach in sample spacings: NEAR_EMITTER for the samples of each triangle
     (light/direct.py), and the reach of the light tree's cut nodes in their radii (tree.CUT_REACH,
-    twice that: 4 by default; 0: no node is near, its samples alone)."""
+    twice that; 0: no node is near, its samples alone)."""
     monkeypatch.setattr(direct, "NEAR_EMITTER", value)
     monkeypatch.setattr(tree, "CUT_REACH", 2.0 * value if value > 0 else -1e30)
 
