@@ -105,7 +105,8 @@ def emitter_irradiance(
         if src.normal_cov is None:
             cos_s = np.abs(facing)
         else:
-            cos_s = front_cosine(facing, src.normal_length, src.normal_cov, omega)
+            along = np.einsum("rsk,sk->rs", omega, src.axis)
+            cos_s = front_cosine(along, src.normal_length, src.normal_cov, omega)
         pair = (cos_r > 0) & (cos_s > 0) & (d2 > 0)
         # From just off the receiver to just off the emitter on the receiver's side: a ray aimed
         # at the sample itself would meet the emitter's own face short of it at grazing angles.
@@ -138,7 +139,7 @@ def _extent(src: EmitterSamples, P, N, lit) -> np.ndarray:
     if len(r) == 0:
         return out
     u = src.centre[k] - P[r]
-    axis = src.normals[k] * np.where(np.einsum("ij,ij->i", src.normals[k], u) < 0, -1.0, 1.0)[:, None]
+    axis = src.axis[k] * np.where(np.einsum("ij,ij->i", src.axis[k], u) < 0, -1.0, 1.0)[:, None]
     with np.errstate(divide="ignore", invalid="ignore"):
         fix = second_order(src.moment[k], u, N[r], axis)
     out[r, k] = np.clip(np.nan_to_num(1.0 + fix, nan=1.0), 0.0, 2.0)

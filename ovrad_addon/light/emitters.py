@@ -36,9 +36,10 @@ class EmitterSamples:
     # each one's central triangle (k,), the sample's place; corners and triangle_radiance then hold
     # every emitting triangle's
     pick: np.ndarray | None = None
-    # a cut node's faces turn: the length (k,) of their mean unit normal and their normals'
-    # covariance (k, 6: xx, yy, zz, xy, xz, yz); a sample then lights a point by the faces facing
-    # it (front_cosine), not by its mean normal alone
+    # a cut node's faces turn: the direction (k, 3) and length (k,) of their mean unit normal and
+    # their normals' covariance (k, 6: xx, yy, zz, xy, xz, yz); a sample then lights a point by the
+    # faces facing it (front_cosine), not by its mean normal alone (`normals`: its central triangle's)
+    axis: np.ndarray | None = None
     normal_length: np.ndarray | None = None
     normal_cov: np.ndarray | None = None
     # ... and each node's centroid (k, 3) and second moment of area about it (k, 6): a sample's
