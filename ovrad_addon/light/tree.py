@@ -51,12 +51,12 @@ class LightTree:
 
     The cut: the nodes of at most a power tau (the largest that leaves `count` of them), split
     further while their normals stray too far from their axis (CUT_CONES); each is one sample at its
-    central triangle's centroid with its power vector, its normals' spread and its second moment of area (a curved
-    emitter's far light is then the sum of its pieces' projected areas, not a quadrature of single
-    triangles facing every way: a UV sphere of 4 032 triangles seen from 400 directions 1 m away,
-    1.4-1.5 % RMS with 16 or 64 samples, against 14 and 4.6 % with triangles picked on power). Fewer
-    than 4 x triangles nodes, about 1.5 kB per emitting triangle; built once per emitter rule, a
-    level at a time (a sort within each node along its longest side)."""
+    central triangle's centroid with its power vector, its normals' spread and its second moment of
+    area (a curved emitter's far light is then the sum of its pieces' projected areas, not a
+    quadrature of single triangles facing every way: a UV sphere of 4 032 triangles seen from 400
+    directions 1 m away, 1.4-1.5 % RMS with 16 or 64 samples, against 14 and 4.6 % with triangles
+    picked on power). Fewer than 4 x triangles nodes, about 1.5 kB per emitting triangle; built once
+    per emitter rule, a level at a time (a sort within each node along its longest side)."""
 
     def __init__(self, corners: np.ndarray, radiance: np.ndarray, count: int):
         c = np.asarray(corners, np.float64)
