@@ -169,9 +169,8 @@ def _near_emitters(H, rs, P, N, src: EmitterSamples, d, g, pair, seen) -> None:
 class EmitterRules:
     """The emitters' fixed rules of one Surfaces: emitter_samples(), or for more emitting triangles
     than samples a LightTree and its cut's samples, made once per (emitters, samples, scale) for
-    whoever keeps this object (a
-    problem keeps one for its solve and bakes: a final gather asks for them at every chunk of its
-    near hits, 408 times in the production room's vertex bake)."""
+    whoever keeps this object (a problem keeps one for its solve and bakes: a final gather asks for
+    them at every chunk of its near hits, 408 times in the production room's vertex bake)."""
 
     def __init__(self, surfaces: Surfaces):
         self.surfaces = surfaces
