@@ -22,7 +22,7 @@ BENCH = Path(__file__).resolve().parents[2] / "benchmarks" / "real_scenes_bench.
 # 2-3 %), four lamp types through a doorway 1.8 %, a vertex-painted floor and box 1.6 % (46 % when
 # the paint is read as the viewport colour), a checker floor multiplied by paint and a box mixing a
 # constant with paint 1.9 % (74 % read as viewport colours), a room lit only by a screen whose
-# emission colour is an image 3.1 % (the wall 2 cm behind the screen holds most of the squared
+# emission colour is an image 2.7 % (the wall 2 cm behind the screen holds most of the squared
 # error; without the image's light the room is black), a terrace under alpha-cut leaf cards in
 # sun and sky 1.5 % (43 % with the cards read as opaque; reference noise 0.5 %), a room in
 # Principled materials as users leave them (a specular layer everywhere, a half-metallic box)
