@@ -485,6 +485,19 @@ def test_a_far_node_of_the_light_tree_is_its_contour_integral(bend, monkeypatch)
     assert np.percentile(one_point, 99) > 4 * np.percentile(err, 99)
 
 
+def _convex_light(corners, pts, nrm) -> np.ndarray:
+    """The unoccluded irradiance (m,) at points (m, 3) with normals (m, 3) from a convex polyhedron
+    of unit radiance (its faces (T, 3, 3) wound outwards): the sum of Lambert's contour integral over
+    the faces each point sees (it is on their outer side; the inner sides of the others are hidden)."""
+    outward = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    exact = np.zeros(len(pts))
+    for k in range(len(pts)):
+        sees = np.einsum("ij,ij->i", pts[k] - corners[:, 0], outward) > 0
+        at = np.tile(pts[k], (sees.sum(), 1))
+        exact[k] = polygon_irradiance(at, np.tile(nrm[k], (sees.sum(), 1)), corners[sees]).sum()
+    return exact
+
+
 @pytest.mark.parametrize("distance", [1.05, 1.3, 2.0, 12.0])
 def test_the_light_tree_gives_a_glowing_sphere_its_exact_light(distance, monkeypatch):
     """A glowing icosphere (1 280 triangles, 64 samples picked on power) seen from outside, every
@@ -503,12 +516,7 @@ def test_the_light_tree_gives_a_glowing_sphere_its_exact_light(distance, monkeyp
     nrm = -toward + 0.4 * rng.normal(size=(150, 3))  # tilted: the sphere crosses some horizons
     nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
     c = s.corners
-    outward = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
-    exact = np.zeros(len(pts))
-    for k in range(len(pts)):
-        sees = np.einsum("ij,ij->i", pts[k] - c[:, 0], outward) > 0
-        at = np.tile(pts[k], (sees.sum(), 1))
-        exact[k] = polygon_irradiance(at, np.tile(nrm[k], (sees.sum(), 1)), c[sees]).sum()
+    exact = _convex_light(c, pts, nrm)
     near_emitter(monkeypatch, 100.0)
     H, _ = emitter_irradiance(s, rays, np.ones(len(c), bool), pts, nrm, 64)
     np.testing.assert_allclose(H / [1.5, 1.0, 0.5], np.repeat(H[:, :1] / 1.5, 3, axis=1), rtol=1e-9)
@@ -584,12 +592,7 @@ def test_a_glowing_spheres_far_light_comes_from_its_light_trees_cut(samples):
     pts = rng.uniform(3.0, 15.0, (300, 1)) * toward
     nrm = -toward
     c = s.corners
-    outward = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
-    exact = np.zeros(len(pts))
-    for k in range(len(pts)):
-        sees = np.einsum("ij,ij->i", pts[k] - c[:, 0], outward) > 0
-        at = np.tile(pts[k], (sees.sum(), 1))
-        exact[k] = polygon_irradiance(at, np.tile(nrm[k], (sees.sum(), 1)), c[sees]).sum()
+    exact = _convex_light(c, pts, nrm)
     H, cast = emitter_irradiance(s, rays, np.ones(len(c), bool), pts, nrm, samples)
     assert cast < 2 * len(pts) * len(src.area)  # the cut's samples, hardly any near field
     ratio = H[:, 0] / exact
