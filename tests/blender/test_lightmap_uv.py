@@ -584,3 +584,27 @@ def test_a_shared_atlas_with_a_named_uv_map_is_refused_and_changes_nothing(scene
     with pytest.raises(RuntimeError, match="put {object} in the file path"):
         bake(tmp_path, atlas="SHARED", max_size=128, filepath=str(tmp_path / "one.exr"))
     assert uv_state() == before and not list(tmp_path.iterdir())
+
+
+def test_a_small_curved_mesh_gets_a_lightmap_at_least_at_the_density(ovrad):
+    """A 12 cm sphere (32 x 16 segments) at 40 texels per metre, 4 texels of padding: Smart UV
+    Project cuts it into a few islands, and their padding needs more than its 17 x 17 texels of
+    density. Pack Islands with a margin of a fifth of the square packed them into nothing (an
+    image of 2 million texels a side was asked); the margin now stays at most a tenth and the
+    image grows to the padding instead."""
+    import bmesh
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    mesh = bpy.data.meshes.new("Ball")
+    bm = bmesh.new()
+    bmesh.ops.create_uvsphere(bm, u_segments=32, v_segments=16, radius=0.12)
+    bm.to_mesh(mesh)
+    bm.free()
+    obj = bpy.data.objects.new("Ball", mesh)
+    bpy.context.scene.collection.objects.link(obj)
+    size = ovrad.operators.lightmap_uv.make(bpy.context, obj, 40.0, 4.0)
+    uv, world = triangles(obj, "ovrad_lightmap")
+    assert 4 <= size <= 128 and size % 4 == 0
+    assert uv.min() >= 0 and uv.max() <= 1
+    assert area(uv).sum() > 0.05  # the islands keep a share of the square
+    assert size * np.sqrt(area(uv).sum() / area(world).sum()) >= 40.0 * (1 - 1e-9)
