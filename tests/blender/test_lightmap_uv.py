@@ -594,7 +594,7 @@ def test_a_small_curved_mesh_gets_a_lightmap_at_least_at_the_density(ovrad):
     image grows to the padding instead."""
     import bmesh
 
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)  # the data only, not the add-ons
     mesh = bpy.data.meshes.new("Ball")
     bm = bmesh.new()
     bmesh.ops.create_uvsphere(bm, u_segments=32, v_segments=16, radius=0.12)
