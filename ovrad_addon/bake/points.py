@@ -111,10 +111,14 @@ def _at_points(problem: Problem, request: BakeRequest, points, triangles, sides,
     else:
         coeffs = radiosity - first_shot
         covered = np.asarray(a.sum(axis=1)).ravel() > 0
-    ask = np.arange(len(pts)) if lit is None else np.flatnonzero(np.asarray(lit, bool) & covered)
-    H = np.zeros((len(pts), 3))
-    if len(ask):
-        H[ask] = _irradiance(problem, request, pts[ask], tri[ask], side[ask], a[ask], ask, len(pts))
+    m = len(pts)
+    ask = np.arange(m) if lit is None else np.flatnonzero(np.asarray(lit, bool) & covered)
+    if len(ask) == m:  # every point: no copies of the points' arrays
+        H = _irradiance(problem, request, pts, tri, side, a, ask, m)
+    else:
+        H = np.zeros((m, 3))
+        if len(ask):
+            H[ask] = _irradiance(problem, request, pts[ask], tri[ask], side[ask], a[ask], ask, m)
     return tri, a, coeffs, np.where(covered[:, None], H, 0.0)
 
 

@@ -183,12 +183,9 @@ def front_cosine(facing: np.ndarray, length: np.ndarray, cov: np.ndarray, omega:
     its rim still gets the light of the faces turned to the point (the mean normal alone cancels
     them against the faces turned away, which a closed emitter hides)."""
     mu = np.abs(facing) * length[None, :]
-    var = (
-        np.einsum("rsi,si,rsi->rs", omega, cov[:, :3], omega)
-        + 2.0 * np.einsum("rs,s->rs", omega[..., 0] * omega[..., 1], cov[:, 3])
-        + 2.0 * np.einsum("rs,s->rs", omega[..., 0] * omega[..., 2], cov[:, 4])
-        + 2.0 * np.einsum("rs,s->rs", omega[..., 1] * omega[..., 2], cov[:, 5])
-    )
+    # omega . cov . omega from the six entries: the off-diagonal ones twice
+    pairs = omega[..., [0, 1, 2, 0, 0, 1]] * omega[..., [0, 1, 2, 1, 2, 2]]
+    var = np.einsum("rsk,sk->rs", pairs, cov * [1.0, 1.0, 1.0, 2.0, 2.0, 2.0])
     sigma = np.sqrt(np.maximum(var, 0.0))
     with np.errstate(divide="ignore", invalid="ignore"):
         z = np.where(sigma > 0, mu / sigma, np.inf)
