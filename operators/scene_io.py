@@ -34,7 +34,8 @@ class _Mesh:
     maps, image_of (T,) the map of each triangle (-1: none) and uv (T, 3, 2) (None when no triangle
     has a map); corners (T, 3, 3) the painted colour at each triangle corner, NaN where not painted
     (None: nowhere); opacity (T,), alpha_maps (image name, alpha (h, w)), alpha_of (T,), alpha_uv
-    (T, 3, 2): its alpha, as textures."""
+    (T, 3, 2): its alpha, as textures; emitted: its emitted colour where that varies, as
+    _Table (None: constant everywhere)."""
 
     vertices: np.ndarray
     triangles: np.ndarray
@@ -50,6 +51,20 @@ class _Mesh:
     alpha_of: np.ndarray | None = None
     alpha_uv: np.ndarray | None = None
     bake_weight: np.ndarray | None = None  # (T,) the share of its diffuse light a bake reports
+    emitted: _Table | None = None
+
+
+@dataclass
+class _Table:
+    """One mesh's colour from maps and paint, as a TextureAlbedo holds it over its triangles:
+    textures (image name, pixels, whether sRGB-encoded), image_of (T,), uv (T, 3, 2), tint (T, 3),
+    corners (T, 3, 3) or None."""
+
+    textures: list
+    image_of: np.ndarray
+    uv: np.ndarray
+    tint: np.ndarray
+    corners: np.ndarray | None = None
 
 
 def _read_mesh(data, warnings: list[str], cache: dict) -> _Colors:
@@ -140,6 +155,25 @@ def _emitted(data, term, on: np.ndarray) -> np.ndarray:
     return triangle_means(table, np.zeros((len(tri), 3)), corners, clip=False) * term.tint
 
 
+def _emitted_table(data, colors: _Colors) -> _Table:
+    """The emitted colour of a mesh's slots whose emission varies (colors.emitting), over all its
+    triangles (image_of -1 and no paint elsewhere): the light's pieces are cut from it."""
+    n = len(data.triangles)
+    table = _Table([], np.full(n, -1, np.int64), np.zeros((n, 3, 2)), np.ones((n, 3)))
+    for k, term in colors.emitting:
+        on = colors.slot == k
+        table.tint[on] = term.tint
+        if term.texture is not None:
+            table.image_of[on] = len(table.textures)
+            table.uv[on] = data.triangle_uvs(term.texture.uv_map)[on]
+            table.textures.append((term.texture.image, *_engine_image(term.texture)))
+        if term.paint is not None:
+            if table.corners is None:
+                table.corners = np.full((n, 3, 3), np.nan)
+            table.corners[on] = term.paint.colours(data.triangle_colors(term.paint.attribute)[on])
+    return table
+
+
 @dataclass
 class _Colors:
     """reflectance (T, 3) and emission (T, 3) of a mesh's triangles; textured: (material slot,
@@ -170,6 +204,7 @@ def _part(data, colors: _Colors) -> _Mesh:
         for k, term in colors.emitting:
             on = colors.slot == k
             part.emission[on] = np.maximum(_emitted(data, term, on), 0.0)
+        part.emitted = _emitted_table(data, colors)
     if colors.painted:
         part.corners = np.full((len(data.triangles), 3, 3), np.nan)
         for k, paint, factor in colors.painted:
@@ -259,33 +294,50 @@ def _material(material, warnings: list[str], cache: dict) -> materials.MaterialL
 def _albedo(parts: list[_Mesh]) -> TextureAlbedo | None:
     """One TextureAlbedo over the triangles of all parts, images shared by name; None if no map
     and no paint."""
-    if not any(p.textures or p.corners is not None for p in parts):
+    tables = [
+        None
+        if not p.textures and p.corners is None
+        else _Table(p.textures, p.image_of, p.uv, p.tint, p.corners)
+        for p in parts
+    ]
+    return _merged(tables, parts)
+
+
+def _merged(tables: list[_Table | None], parts: list[_Mesh]) -> TextureAlbedo | None:
+    """One TextureAlbedo over the triangles of all parts from each part's table (None: no map, no
+    paint and a tint of 1 there), images shared by name; None if no part has a table."""
+    if all(t is None for t in tables):
         return None
     images: dict[str, int] = {}
     pixels, srgb = [], []
     image_of, uv, tint = [], [], []
-    for p in parts:
+    for p, table in zip(parts, tables, strict=True):
         n = len(p.triangles)
-        tint.append(np.ones((n, 3)) if p.tint is None else p.tint)
-        if not p.textures:
+        tint.append(np.ones((n, 3)) if table is None or table.tint is None else table.tint)
+        if table is None or not table.textures:
             image_of.append(np.full(n, -1, np.int64))
             uv.append(np.zeros((n, 3, 2)))
             continue
         remap = []
-        for name, px, encoded in p.textures:
+        for name, px, encoded in table.textures:
             if name not in images:
                 images[name] = len(pixels)
                 pixels.append(px)
                 srgb.append(encoded)
             remap.append(images[name])
         remap = np.array(remap + [-1], np.int64)  # -1 -> -1 (the last entry)
-        image_of.append(remap[p.image_of])
-        uv.append(p.uv)
+        image_of.append(remap[table.image_of])
+        uv.append(table.uv)
     image_of = np.concatenate(image_of)
     corners = None
-    if any(p.corners is not None for p in parts):
+    if any(t is not None and t.corners is not None for t in tables):
         corners = np.concatenate(
-            [p.corners if p.corners is not None else np.full((len(p.triangles), 3, 3), np.nan) for p in parts]
+            [
+                t.corners
+                if t is not None and t.corners is not None
+                else np.full((len(p.triangles), 3, 3), np.nan)
+                for p, t in zip(parts, tables, strict=True)
+            ]
         )
     return TextureAlbedo(
         images=tuple(pixels),
@@ -371,6 +423,7 @@ def read_scene(depsgraph, receivers, occluders=(), model=None) -> SceneMeshes:
         receiver=np.arange(len(items)) < n_receivers,
         albedo=_albedo(parts),
         coverage=_coverage(parts),
+        emitted=_merged([p.emitted for p in parts], parts),
         bake_weight=np.concatenate(
             [np.ones(len(p.triangles)) if p.bake_weight is None else p.bake_weight for p in parts]
         ),

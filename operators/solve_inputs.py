@@ -123,6 +123,8 @@ def light_key(surfaces: Surfaces, lamps, sky: Sky | None = None) -> str:
     h = hasher(20)
     h.update(repr(tuple(lamps)).encode())
     h.update(np.ascontiguousarray(surfaces.emission).tobytes())
+    if surfaces.emitted is not None:  # where an image emits, its pieces light the scene
+        h.update(b"emitted" + surfaces.emitted.key())
     if sky is not None:
         h.update(sky.key().encode())
     return h.hexdigest()

@@ -29,6 +29,20 @@ def subtriangle_centroids(k: int) -> np.ndarray:
     return np.vstack([uv_up, uv_down])
 
 
+def subtriangle_corners(k: int) -> np.ndarray:
+    """(k^2, 3, 3): the barycentric weights of the corners of the k^2 congruent triangles a
+    triangle splits into (row a of piece p: corner a's weights on the triangle's corners 0, 1, 2),
+    each wound as the triangle is; their centroids are subtriangle_centroids(k), in its order."""
+    i, j = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
+    up = (i + j) <= k - 1
+    down = (i + j) <= k - 2
+    iu, ju, idn, jdn = i[up], j[up], i[down], j[down]
+    # (u, v): the weights on corners 1 and 2
+    u = np.vstack([np.column_stack([iu, iu + 1, iu]), np.column_stack([idn + 1, idn + 1, idn])]) / k
+    v = np.vstack([np.column_stack([ju, ju, ju + 1]), np.column_stack([jdn, jdn + 1, jdn + 1])]) / k
+    return np.stack([1.0 - u - v, u, v], axis=2)
+
+
 def unique_rows(rows: np.ndarray, return_index=False, return_inverse=False, return_counts=False):
     """np.unique(rows, axis=0, ...) for integer rows (m, k), with the same results in the same
     (lexicographic) order: each row folded into one int64 key, column 0 the most significant, where

@@ -148,11 +148,14 @@ def _irradiance(problem: Problem, request: BakeRequest, pts, tri, side, a, rows,
     own = own_emission(problem, light.emitters, light.emission_scale)
     if light.near_field:
         few = min(light.samples, NEAR_LIGHT_SAMPLES)
+        # an image emitter's pieces are left to the bake points: a near hit's light reaches them
+        # reflected, averaged over the gather's rays
+        coarse = replace(light, emission_pieces=False)
         near_light = replace(
-            light,
+            coarse,
             samples=few,
             emitter_samples=emitter_sample_count(
-                problem.emitter_rules, light, min(light.samples, NEAR_PICKED_SAMPLES), few
+                problem.emitter_rules, coarse, min(light.samples, NEAR_PICKED_SAMPLES), few
             ),
             sky_samples=min(light.sky_samples, NEAR_SKY_SAMPLES),
             area_jittered=True,

@@ -8,7 +8,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import ndtr
 
-from ..geometry import subtriangle_centroids
+from ..geometry import subtriangle_centroids, subtriangle_corners
+from ..scene.albedo import TextureAlbedo, triangle_means
 from ..scene.surfaces import Surfaces, triangle_geometry
 
 SQRT_2PI = np.sqrt(2.0 * np.pi)
@@ -48,19 +49,102 @@ class EmitterSamples:
     moment: np.ndarray | None = None
 
 
-def emitting_triangles(surfaces: Surfaces, emitters: np.ndarray, scale: float = 1.0):
+# An emitting triangle whose Emission Color is an image lights its surroundings through pieces of
+# about PIECE_TEXELS texels of that image, each emitting its own mean (k^2 congruent pieces, k from
+# the triangle's longest edge in texels): a screen's warm and cool halves light the wall beside each
+# the way Cycles does, where the triangle's mean colour lit it evenly.
+PIECE_TEXELS = 1.0
+PIECES_PER_EDGE_MOST = 16  # a triangle splits into at most 16^2 pieces
+PIECES_MOST = 1 << 13  # pieces over all emitters; beyond, every triangle's split is made coarser
+PIECE_MEAN_SPLIT = 3  # a piece's mean colour: over the centroids of its 3^2 sub-triangles
+# A triangle whose pieces all emit within this share of its mean stays whole: a piece costs a point
+# near it a walk of the light tree to that piece (a uniform band of a screen needs none)
+PIECE_VARIATION = 0.01
+
+
+def emitting_triangles(surfaces: Surfaces, emitters: np.ndarray, scale: float = 1.0, pieces: bool = True):
     """The corners (E, 3, 3) and radiance (E, 3) of the triangles among `emitters` ((T,) bool) that
-    emit some power."""
+    emit some power; with `pieces`, a triangle whose emitted colour is an image (Surfaces.emitted)
+    comes as its pieces (emission_pieces), each with its own mean radiance, in its place."""
     tri = np.flatnonzero(np.asarray(emitters, bool) & (surfaces.emission.sum(axis=1) > 0))
     c = surfaces.corners[tri]
-    area, _ = triangle_geometry(c)
     radiance = surfaces.emission[tri] * scale
+    if pieces and surfaces.emitted is not None:
+        c, radiance = emission_pieces(surfaces.emitted, tri, c, radiance, scale)
+    area, _ = triangle_geometry(c)
     keep = area * radiance.sum(axis=1) > 0
     return c[keep], radiance[keep]
 
 
+def piece_splits(table: TextureAlbedo, tri: np.ndarray) -> np.ndarray:
+    """(t,) int64: into k^2 pieces each triangle `tri` splits for its light, k at least 1: the
+    triangles with an image, so that a piece's edges span about PIECE_TEXELS texels, at most
+    PIECES_PER_EDGE_MOST per edge and PIECES_MOST pieces in all; the others (a constant or painted
+    emission, linear over the triangle) stay whole."""
+    k = np.ones(len(tri), np.int64)
+    img = table.image_of[tri]
+    mapped = np.flatnonzero(img >= 0)
+    if len(mapped) == 0:
+        return k
+    size = np.array([[im.shape[1], im.shape[0]] for im in table.images], np.float64)  # (w, h)
+    uv = table.uv[tri[mapped]]
+    edges = (uv[:, [1, 2, 0]] - uv) * size[img[mapped], None, :]
+    texels = np.sqrt(np.einsum("tej,tej->te", edges, edges)).max(axis=1)
+    k[mapped] = np.clip(np.ceil(texels / PIECE_TEXELS), 1, PIECES_PER_EDGE_MOST).astype(np.int64)
+    total = int(np.sum(k * k))
+    if total > PIECES_MOST:
+        shrink = np.sqrt((PIECES_MOST - (len(k) - len(mapped))) / max(total - (len(k) - len(mapped)), 1))
+        k[mapped] = np.maximum(1, np.floor(k[mapped] * shrink)).astype(np.int64)
+    return k
+
+
+def emission_pieces(
+    table: TextureAlbedo, tri: np.ndarray, corners: np.ndarray, radiance: np.ndarray, scale: float
+):
+    """Emitting triangles tri (t,), corners (t, 3, 3), radiance (t, 3), with each one split as
+    piece_splits says: (corners (E, 3, 3), radiance (E, 3)), a triangle's pieces in its place, a
+    piece's radiance the mean of the emitted colour over it x scale. A triangle left whole, or
+    whose pieces emit within PIECE_VARIATION of their mean, keeps its row as given."""
+    k = piece_splits(table, tri)
+    if np.all(k == 1):
+        return corners, radiance
+    rows = np.ones(len(tri), np.int64)  # rows each triangle gives
+    split = []  # (triangles, their pieces' corners (s, p, 3, 3), radiance (s, p, 3))
+    for level in np.unique(k[k > 1]):
+        sel = np.flatnonzero(k == level)
+        bary = subtriangle_corners(int(level))  # (p, 3, 3): each piece's corners' barycentrics
+        t = tri[sel]
+        pc = np.einsum("pab,tbj->tpaj", bary, corners[sel])
+        uv = np.einsum("pab,tbj->tpaj", bary, table.uv[t]).reshape(-1, 3, 2)
+        paint = None
+        if table.corners is not None:
+            paint = np.einsum("pab,tbj->tpaj", bary, table.corners[t]).reshape(-1, 3, 3)
+        rep = np.repeat(t, len(bary))
+        pieces = TextureAlbedo(
+            table.images, table.image_of[rep], uv, table.tint[rep], corners=paint, srgb=table.srgb
+        )
+        means = triangle_means(
+            pieces, np.zeros((len(rep), 3)), pc.reshape(-1, 3, 3), k=PIECE_MEAN_SPLIT, clip=False
+        )
+        means = means.reshape(len(t), len(bary), 3)
+        mean = means.mean(axis=1)
+        spread = np.abs(means - mean[:, None]).sum(axis=2).max(axis=1)
+        uneven = np.flatnonzero(spread > PIECE_VARIATION * mean.sum(axis=1))
+        rows[sel[uneven]] = len(bary)
+        split.append((sel[uneven], pc[uneven], means[uneven] * scale))
+    first = np.concatenate([[0], np.cumsum(rows)[:-1]])
+    out_c = np.empty((int(rows.sum()), 3, 3))
+    out_r = np.empty((len(out_c), 3))
+    whole = rows == 1
+    out_c[first[whole]], out_r[first[whole]] = corners[whole], radiance[whole]
+    for sel, pc, pr in split:
+        at = (first[sel][:, None] + np.arange(pc.shape[1])).ravel()
+        out_c[at], out_r[at] = pc.reshape(-1, 3, 3), pr.reshape(-1, 3)
+    return out_c, out_r
+
+
 def emitter_samples(
-    surfaces: Surfaces, emitters: np.ndarray, count: int, scale: float = 1.0
+    surfaces: Surfaces, emitters: np.ndarray, count: int, scale: float = 1.0, pieces: bool = True
 ) -> EmitterSamples:
     """About `count` points over the emitting triangles, shared by every receiver point, for
     emitters of at most `count` triangles (more: light.tree.LightTree's cut).
@@ -70,7 +154,7 @@ def emitter_samples(
     triangle gets points in proportion to its power, as the centroids of its k^2 congruent
     sub-triangles.
     """
-    c, radiance = emitting_triangles(surfaces, emitters, scale)
+    c, radiance = emitting_triangles(surfaces, emitters, scale, pieces)
     area, normal = triangle_geometry(c)
     power = area * radiance.sum(axis=1)
     if len(c) == 0 or count < 1:

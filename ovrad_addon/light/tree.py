@@ -15,6 +15,11 @@ from .lamps import shadow_origin
 NEAR_EXACT = 4.0  # near_picked takes a node of the light tree as one point this x its radius away
 
 NEAR_POINTS = 1 << 13  # points whose near emitters near_picked finds at once (memory: their frontier)
+# (point, node) pairs a block's frontier (or its found nodes) holds at most: a block whose walk would
+# hold more is walked
+# in halves (a point 2 cm from a finely split emitter walks thousands of nodes; 8 192 such points
+# at once asked 3.5 GB for one level's rows)
+FRONTIER_MOST = 1 << 20
 
 NEAR_CONE = 0.97  # a light-tree node whose normals stray over acos(this) from its axis is never one point
 
@@ -273,17 +278,26 @@ def near_picked(H, rs, P, N, src: EmitterSamples, tree: LightTree, g, rays, eps:
     its exact unoccluded light (Lambert's contour); each x whether the point sees the node's central
     triangle's centroid (one shadow ray). Points go in blocks of NEAR_POINTS. Returns the rays cast."""
     cast = 0
-    for b0 in range(0, len(P), NEAR_POINTS):
-        block = np.arange(b0, min(len(P), b0 + NEAR_POINTS))
-        cast += _near_block(H, rs, P, N, src, tree, g, rays, eps, block)
+    blocks = [np.arange(b0, min(len(P), b0 + NEAR_POINTS)) for b0 in range(0, len(P), NEAR_POINTS)]
+    while blocks:
+        block = blocks.pop(0)
+        n = _near_block(H, rs, P, N, src, tree, g, rays, eps, block)
+        if n is None:  # its frontier outgrew FRONTIER_MOST: its halves, in order
+            half = (len(block) + 1) // 2
+            blocks[:0] = [block[:half], block[half:]]
+        else:
+            cast += n
     return cast
 
 
-def _near_block(H, rs, P, N, src: EmitterSamples, tree: LightTree, g, rays, eps, block) -> int:
+def _near_block(H, rs, P, N, src: EmitterSamples, tree: LightTree, g, rays, eps, block) -> int | None:
     """near_picked for the points `block`: the tree walked a level at a time for all of them at once
-    (a frontier of (point, node) pairs), then one batch of shadow rays."""
+    (a frontier of (point, node) pairs), then one batch of shadow rays; None, with H untouched, where
+    the frontier of a block of several points would outgrow FRONTIER_MOST. A point's light does not
+    depend on the block it is walked in."""
     i, j = block, np.zeros(len(block), np.int64)
     found = []  # per level: points, irradiance (., 3), central triangle, samples' range
+    held = 0  # pairs in found
     for (F, I, power), state in zip(tree.levels, tree.state, strict=True):  # noqa: E741
         ints = I[j]
         live = ints[:, _I["count"]] > 0
@@ -291,6 +305,8 @@ def _near_block(H, rs, P, N, src: EmitterSamples, tree: LightTree, g, rays, eps,
             i, j, ints = i[live], j[live], ints[live]
         if len(i) == 0:
             break
+        if len(i) > FRONTIER_MOST and len(block) > 1:
+            return None
         f, Pi, Ni = F[j], P[i], N[i]
         v = f[:, _F["centroid"]] - Pi
         d = np.sqrt(np.einsum("ij,ij->i", v, v))
@@ -341,6 +357,9 @@ def _near_block(H, rs, P, N, src: EmitterSamples, tree: LightTree, g, rays, eps,
         found.append((i[done], E[done], rep[done], ints[done, _I["s_lo"]], ints[done, _I["s_hi"]]))
         if len(back):
             found.append((i[back], np.zeros((len(back), 3)), rep[back], ints[back, 2], ints[back, 3]))
+        held += len(done) + len(back)
+        if held > FRONTIER_MOST and len(block) > 1:
+            return None
         down = ~far
         down[done] = False
         i, j = np.repeat(i[down], 2), (2 * j[down, None] + [0, 1]).ravel()

@@ -117,7 +117,7 @@ def picked_emitters(source: Surfaces | EmitterRules, light: DirectLight, samples
     return (
         emitters is not None
         and bool(np.any(emitters))
-        and picked(source, emitters, samples, light.emission_scale)
+        and picked(source, emitters, samples, light.emission_scale, light.emission_pieces)
     )
 
 
@@ -158,7 +158,8 @@ def solve(
     if state is None:
         T = problem.transport
         shadow_budget = int(SHADOW_BUDGET * settings.max_rays)
-        light = direct_light(problem, lamps, settings, emission_scale, sky)
+        # an image emitter's pieces: left to the bake points (a patch averages their detail away)
+        light = replace(direct_light(problem, lamps, settings, emission_scale, sky), emission_pieces=False)
         rp = first_shot_points(T.points, light, settings, shadow_budget, problem.emitter_rules)
         points = len(rp.owner)
         samples = within_budget(settings.light_samples, points, shadow_budget, MIN_LIGHT_SAMPLES)

@@ -33,6 +33,10 @@ class Surfaces:
     bake_weight: (T,) the share of the light a triangle reflects diffusely that a bake reports
     (a layered material's upper lobes take the rest towards the viewer, who sees a baked point
     along its normal); the solve's transport uses the reflectance alone. None: 1 everywhere.
+    emitted: the emitted colour of the triangles whose emission varies over them (an image or a
+    colour attribute as Emission Color, its tint the strength x any constant factor), as a
+    TextureAlbedo; their `emission` is then each one's mean, and their light comes from pieces of
+    about a texel (light.emitters.emitting_triangles). None: every triangle emits a constant.
     """
 
     vertices: np.ndarray
@@ -45,6 +49,7 @@ class Surfaces:
     albedo: TextureAlbedo | None = None
     coverage: Coverage | None = None
     bake_weight: np.ndarray | None = None
+    emitted: TextureAlbedo | None = None
 
     @staticmethod
     def from_arrays(
@@ -58,6 +63,7 @@ class Surfaces:
         albedo=None,
         coverage=None,
         bake_weight=None,
+        emitted=None,
     ) -> Surfaces:
         """Validate and normalise input arrays; raise OvradError on unusable input."""
         v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
@@ -103,7 +109,12 @@ class Surfaces:
                 raise OvradError("bake_weight must give one share in [0, 1] per triangle")
             if np.all(weight == 1.0):
                 weight = None
-        return Surfaces(v, t, oi, rho, em, names, rec, albedo, coverage, weight)
+        if emitted is not None:
+            if len(emitted.image_of) != len(t):
+                raise OvradError("emitted colour must describe every triangle (image_of -1 where none)")
+            if not np.any(emitted.varies & (em.sum(axis=1) > 0)):
+                emitted = None
+        return Surfaces(v, t, oi, rho, em, names, rec, albedo, coverage, weight, emitted)
 
     # Computed once per Surfaces (frozen, so the arrays they derive from never change); callers
     # must not write into them.

@@ -484,6 +484,38 @@ def test_an_8_bit_srgb_texture_is_interpolated_before_it_is_decoded(ovrad, fresh
     assert np.abs(other - baked).max() > 0.02
 
 
+def test_an_emission_image_reaches_the_light_as_cycles_emits_it(ovrad, fresh_scene):
+    # A plane whose Emission Color is a 4 x 4 float image (Linear, strength 3): the colour the scene
+    # read keeps for the light's pieces (Surfaces.emitted) is Cycles' own emission bake at 16 x 16
+    # texel centres, between the image's; each triangle's emission is its mean, and its light comes
+    # from pieces that each emit their own (light.emitters.emission_pieces).
+    bpy.ops.mesh.primitive_plane_add(size=1.0)
+    plane = bpy.context.active_object
+    pixels = np.random.default_rng(8).uniform(0.05, 0.95, (4, 4, 3))
+    mat, tree, shader = emission_material("image light")
+    shader.inputs["Strength"].default_value = 3.0
+    tex = tree.nodes.new("ShaderNodeTexImage")
+    tex.image, tex.interpolation = float_image("light image", pixels), "Linear"
+    tree.links.new(tex.outputs["Color"], shader.inputs["Color"])
+    plane.data.materials.append(mat)
+    baked = bake_emission(plane, mat, 16)
+    s = ovrad.operators.scene_io.read_scene(bpy.context.evaluated_depsgraph_get(), [plane]).surfaces
+    assert s.emitted is not None and s.albedo is None
+    uv = (np.stack(np.meshgrid(np.arange(16), np.arange(16)), axis=-1) + 0.5) / 16
+    points = np.concatenate([uv.reshape(-1, 2) - 0.5, np.zeros((256, 1))], axis=1)
+    down = np.tile([0.0, 0.0, -1.0], (256, 1))
+    tri = ovrad.ovrad_addon.make_rays(s.vertices, s.triangles).closest_hit(points - down, down, 2.0)[1]
+    emitted = ovrad.ovrad_addon.scene.albedo.albedo_at(
+        s.emitted, s.emission, s.corners, tri, points, clip=False
+    )
+    np.testing.assert_allclose(emitted.reshape(16, 16, 3), baked, atol=2e-3 * 3.0)
+    corners, radiance = ovrad.ovrad_addon.light.emitters.emitting_triangles(
+        s, np.ones(len(s.triangles), bool)
+    )
+    assert len(corners) == 2 * 36  # the diagonal spans 4 sqrt(2) = 5.7 texels: 6 pieces along each edge
+    assert len(np.unique(radiance.round(9), axis=0)) == len(corners)
+
+
 def test_an_image_without_pixels_is_magenta_as_cycles_renders_it(ovrad, fresh_scene, tmp_path):
     # A glTF whose textures are missing (the BoomBox asset) renders magenta in Cycles, in its base
     # colour and its emission alike (Cycles' own emission bake below). The reader gives the base
