@@ -70,8 +70,9 @@ def make(name: str, samples: int, seeds: int, folder: Path) -> dict:
 
 
 def load(name: str) -> dict:
-    """A stored reference of the real-scenes set: arrays (radiance float64) and 'meta' as a dict."""
-    with np.load(OUT / f"{name}.npz") as z:
+    """A stored reference of the real-scenes set: arrays (radiance float64) and 'meta' as a dict
+    (a scene of real_scenes.REFERENCE_OF: the other scene's)."""
+    with np.load(OUT / f"{real_scenes.REFERENCE_OF.get(name, name)}.npz") as z:
         out = {k: z[k] for k in z.files}
     out["radiance"] = out["radiance"].astype(np.float64)
     out["meta"] = json.loads(str(out["meta"]))
@@ -80,11 +81,12 @@ def load(name: str) -> dict:
 
 def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog="make_real_reference.py", description=__doc__.split("\n")[0])
-    p.add_argument("--scene", choices=(*real_scenes.SCENES, "all"), required=True)
+    own = [n for n in real_scenes.SCENES if n not in real_scenes.REFERENCE_OF]  # the others share one
+    p.add_argument("--scene", choices=(*own, "all"), required=True)
     p.add_argument("--samples", type=int, default=2048, help="total samples over all seeds")
     p.add_argument("--seeds", type=int, default=2, help="independent runs the samples are split over")
     a = p.parse_args(argv)
-    names = list(real_scenes.SCENES) if a.scene == "all" else [a.scene]
+    names = own if a.scene == "all" else [a.scene]
     OUT.mkdir(parents=True, exist_ok=True)
     folder = Path(tempfile.mkdtemp(prefix="ovrad-real-"))
     for name in names:

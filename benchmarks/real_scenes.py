@@ -588,9 +588,10 @@ def mixed():
     return scene
 
 
-def screen():
+def screen(spacing: float = 0.05):
     """A dark room lit only by a screen on its north wall: a Principled BSDF whose Emission Color is
-    an sRGB image (warm, dark and cool bands) through the screen's UV map, strength 6."""
+    an sRGB image (warm, dark and cool bands) through the screen's UV map, strength 6; the screen's
+    quad cut into cells of `spacing`."""
     scene = _new_scene("screen")
     white = diffuse("White", WHITE)
     w, d, h = 2.4, 2.4, 2.2
@@ -611,7 +612,7 @@ def screen():
     bsdf.inputs["Emission Strength"].default_value = 6.0
     # a 1.2 x 0.7 m screen 2 cm off the north wall, its UVs spanning the image once
     x0, x1, z0, z1, y = 0.6, 1.8, 0.9, 1.6, d - 0.02
-    obj = mesh("Screen", [[(x0, y, z0), (x1, y, z0), (x1, y, z1), (x0, y, z1)]], mat, spacing=0.05)
+    obj = mesh("Screen", [[(x0, y, z0), (x1, y, z0), (x1, y, z1), (x0, y, z1)]], mat, spacing=spacing)
     me = obj.data
     co = np.empty(3 * len(me.vertices))
     me.vertices.foreach_get("co", co)
@@ -622,6 +623,12 @@ def screen():
     me.uv_layers.new(name="UVMap").data.foreach_set("uv", uv[loops].astype(np.float32).ravel())
     camera(scene, (1.2, 0.2, 1.4), (1.2, 2.4, 1.0))
     return scene
+
+
+def screen_quad():
+    """The screen scene with the screen one quad (two triangles), as a television is often modelled:
+    its image's bands and their blends, a texel or more, lie inside its triangles."""
+    return screen(spacing=10.0)
 
 
 def leaf_image(name: str, size: int = 128) -> bpy.types.Image:
@@ -753,11 +760,19 @@ SCENES = {
     "painted": painted,
     "mixed": mixed,
     "screen": screen,
+    "screen_quad": screen_quad,
     "bulb": bulb,
     "foliage": foliage,
     "sky_constant": sky_constant,
     "sky_hdr": sky_hdr,
 }
+
+
+# Scenes scored against another scene's reference: screen_quad is the screen scene's room under the
+# same emitted light (the same image through the same planar UVs), only the screen's mesh is cut
+# differently; the screen is not baked, and Cycles' converged bake of the room does not depend on
+# how its emitter is cut.
+REFERENCE_OF = {"screen_quad": "screen"}
 
 
 def build(name: str, path: str | Path):

@@ -11,7 +11,7 @@ from ..errors import OvradError
 from ..light.direct import DirectLight, direct_irradiance, triangle_normals
 from ..overlap.queries import alpha_at, reconstruct
 from ..radiosity.emission import bake_sky, own_emission, patch_emission
-from ..radiosity.first_shot import emitter_sample_count
+from ..radiosity.first_shot import emitter_sample_count, patch_piece
 from ..radiosity.problem import Problem
 from ..scene.surfaces import per_albedo
 from .gather import (
@@ -148,9 +148,9 @@ def _irradiance(problem: Problem, request: BakeRequest, pts, tri, side, a, rows,
     own = own_emission(problem, light.emitters, light.emission_scale)
     if light.near_field:
         few = min(light.samples, NEAR_LIGHT_SAMPLES)
-        # an image emitter's pieces are left to the bake points: a near hit's light reaches them
-        # reflected, averaged over the gather's rays
-        coarse = replace(light, emission_pieces=False)
+        # an image emitter's pieces no smaller than a patch: a near hit's light reaches the bake
+        # point reflected, averaged over the gather's rays
+        coarse = replace(light, emission_piece_size=patch_piece(problem))
         near_light = replace(
             coarse,
             samples=few,

@@ -61,9 +61,10 @@ class DirectLight:
     # area lamps: each stratum jittered per point (light.lamps.jittered_area_samples)
     area_jittered: bool = False
     gather_seed: int | None = None  # the final gather's pattern seed (None: bake.gather.GATHER_SEED)
-    # an image emitter's light from its pieces (light.emitters.emission_pieces); False: from each
-    # triangle's mean (the first shot, whose patches average the pieces' detail away)
-    emission_pieces: bool = True
+    # an image emitter's light from pieces of about a texel of it (light.emitters.emission_pieces),
+    # but no smaller than this along a triangle's longest edge (scene units): the first shot and the
+    # near gather hits, whose light a patch or a gather's rays average, take pieces of a patch
+    emission_piece_size: float = 0.0
 
 
 def triangle_normals(surfaces: Surfaces, triangles: np.ndarray) -> np.ndarray:
@@ -79,18 +80,18 @@ def emitter_irradiance(
     normals: np.ndarray,
     samples: int = 64,
     scale: float = 1.0,
-    pieces: bool = True,
+    piece_size: float = 0.0,
 ) -> tuple[np.ndarray, int]:
     """Irradiance (m, 3) at points with unit normals (m, 3) from the emitting triangles `emitters`
     ((T,) bool), over a fixed rule of about `samples` emitter points with a shadow ray each; and
     the number of rays cast. Deterministic. source: the surfaces, or the EmitterRules that keep
-    their rules. pieces: an image emitter's light from its pieces (emitting_triangles)."""
+    their rules. piece_size: an image emitter's least piece size (emitting_triangles)."""
     pts = np.asarray(points, np.float64).reshape(-1, 3)
     nrm = np.asarray(normals, np.float64).reshape(-1, 3)
     H = np.zeros((len(pts), 3))
     rules = rules_of(source)
     surfaces = rules.surfaces
-    src, near = rules.rule(emitters, samples, scale, pieces)
+    src, near = rules.rule(emitters, samples, scale, piece_size)
     k = len(src.area)
     if len(pts) == 0 or k == 0:
         return H, 0
@@ -181,18 +182,18 @@ class EmitterRules:
         self._made: dict = {}
 
     def rule(
-        self, emitters, samples: int, scale: float, pieces: bool = True
+        self, emitters, samples: int, scale: float, piece_size: float = 0.0
     ) -> tuple[EmitterSamples, LightTree | None]:
         flags = np.asarray(emitters, bool)
-        key = (len(flags), np.packbits(flags).tobytes(), int(samples), float(scale), bool(pieces))
+        key = (len(flags), np.packbits(flags).tobytes(), int(samples), float(scale), float(piece_size))
         if key not in self._made:
-            corners, radiance = emitting_triangles(self.surfaces, flags, scale, pieces)
+            corners, radiance = emitting_triangles(self.surfaces, flags, scale, piece_size)
             if samples >= 1 and len(corners) >= samples:
                 # more triangles than samples: the light tree's cut (its far field) and its near field
                 tree = LightTree(corners, radiance, samples)
                 self._made[key] = (tree.samples, tree)
             else:
-                self._made[key] = (emitter_samples(self.surfaces, flags, samples, scale, pieces), None)
+                self._made[key] = (emitter_samples(self.surfaces, flags, samples, scale, piece_size), None)
         return self._made[key]
 
 
@@ -206,12 +207,12 @@ def picked(
     emitters: np.ndarray,
     samples: int,
     scale: float = 1.0,
-    pieces: bool = True,
+    piece_size: float = 0.0,
 ) -> bool:
     """Whether the emitters have more triangles than `samples`: their samples are then a light
     tree's cut (light.tree.LightTree), whose near field every point within reach of a cut node
     walks (fewer samples make larger nodes and widen that near field)."""
-    return rules_of(source).rule(emitters, samples, scale, pieces)[0].pick is not None
+    return rules_of(source).rule(emitters, samples, scale, piece_size)[0].pick is not None
 
 
 def direct_irradiance(
@@ -243,7 +244,7 @@ def direct_irradiance(
     if light.emitters is not None and np.any(light.emitters):
         samples = light.emitter_samples or light.samples
         h, n = emitter_irradiance(
-            rules, rays, light.emitters, pts, nrm, samples, light.emission_scale, light.emission_pieces
+            rules, rays, light.emitters, pts, nrm, samples, light.emission_scale, light.emission_piece_size
         )
         H += h
         cast += n

@@ -9,7 +9,7 @@ import numpy as np
 from scipy.special import ndtr
 
 from ..geometry import subtriangle_centroids, subtriangle_corners
-from ..scene.albedo import TextureAlbedo, triangle_means
+from ..scene.albedo import TextureAlbedo, texel_means, texel_spans
 from ..scene.surfaces import Surfaces, triangle_geometry
 
 SQRT_2PI = np.sqrt(2.0 * np.pi)
@@ -54,43 +54,48 @@ class EmitterSamples:
 # the triangle's longest edge in texels): a screen's warm and cool halves light the wall beside each
 # the way Cycles does, where the triangle's mean colour lit it evenly.
 PIECE_TEXELS = 1.0
-PIECES_PER_EDGE_MOST = 16  # a triangle splits into at most 16^2 pieces
+PIECES_PER_EDGE_MOST = 64  # a triangle splits into at most 64^2 pieces
 PIECES_MOST = 1 << 13  # pieces over all emitters; beyond, every triangle's split is made coarser
-PIECE_MEAN_SPLIT = 3  # a piece's mean colour: over the centroids of its 3^2 sub-triangles
+PIECE_MEAN_SPLIT = 3  # a piece's mean colour: over at least the centroids of its 3^2 sub-triangles
 # A triangle whose pieces all emit within this share of its mean stays whole: a piece costs a point
 # near it a walk of the light tree to that piece (a uniform band of a screen needs none)
 PIECE_VARIATION = 0.01
 
 
-def emitting_triangles(surfaces: Surfaces, emitters: np.ndarray, scale: float = 1.0, pieces: bool = True):
+def emitting_triangles(surfaces: Surfaces, emitters: np.ndarray, scale: float = 1.0, piece_size: float = 0.0):
     """The corners (E, 3, 3) and radiance (E, 3) of the triangles among `emitters` ((T,) bool) that
-    emit some power; with `pieces`, a triangle whose emitted colour is an image (Surfaces.emitted)
-    comes as its pieces (emission_pieces), each with its own mean radiance, in its place."""
+    emit some power; a triangle whose emitted colour is an image (Surfaces.emitted) comes as its
+    pieces (emission_pieces, none smaller than piece_size), each with its own mean radiance, in its
+    place."""
     tri = np.flatnonzero(np.asarray(emitters, bool) & (surfaces.emission.sum(axis=1) > 0))
     c = surfaces.corners[tri]
     radiance = surfaces.emission[tri] * scale
-    if pieces and surfaces.emitted is not None:
-        c, radiance = emission_pieces(surfaces.emitted, tri, c, radiance, scale)
+    if surfaces.emitted is not None:
+        c, radiance = emission_pieces(surfaces.emitted, tri, c, radiance, scale, piece_size)
     area, _ = triangle_geometry(c)
     keep = area * radiance.sum(axis=1) > 0
     return c[keep], radiance[keep]
 
 
-def piece_splits(table: TextureAlbedo, tri: np.ndarray) -> np.ndarray:
+def piece_splits(
+    table: TextureAlbedo, tri: np.ndarray, corners: np.ndarray | None = None, piece_size: float = 0.0
+) -> np.ndarray:
     """(t,) int64: into k^2 pieces each triangle `tri` splits for its light, k at least 1: the
-    triangles with an image, so that a piece's edges span about PIECE_TEXELS texels, at most
-    PIECES_PER_EDGE_MOST per edge and PIECES_MOST pieces in all; the others (a constant or painted
-    emission, linear over the triangle) stay whole."""
+    triangles with an image, so that a piece's edges span about PIECE_TEXELS texels but its
+    longest is no shorter than piece_size (corners (t, 3, 3) then give the triangles' edges), at
+    most PIECES_PER_EDGE_MOST per edge and PIECES_MOST pieces in all; the others (a constant or
+    painted emission, linear over the triangle) stay whole."""
     k = np.ones(len(tri), np.int64)
-    img = table.image_of[tri]
-    mapped = np.flatnonzero(img >= 0)
+    span = texel_spans(table, tri)
+    mapped = np.flatnonzero(span > 0)
     if len(mapped) == 0:
         return k
-    size = np.array([[im.shape[1], im.shape[0]] for im in table.images], np.float64)  # (w, h)
-    uv = table.uv[tri[mapped]]
-    edges = (uv[:, [1, 2, 0]] - uv) * size[img[mapped], None, :]
-    texels = np.sqrt(np.einsum("tej,tej->te", edges, edges)).max(axis=1)
-    k[mapped] = np.clip(np.ceil(texels / PIECE_TEXELS), 1, PIECES_PER_EDGE_MOST).astype(np.int64)
+    want = np.ceil(span[mapped] / PIECE_TEXELS)
+    if piece_size > 0:
+        c = corners[mapped]
+        edge = np.linalg.norm(c[:, [1, 2, 0]] - c, axis=2).max(axis=1)
+        want = np.minimum(want, np.ceil(edge / piece_size))
+    k[mapped] = np.clip(want, 1, PIECES_PER_EDGE_MOST).astype(np.int64)
     total = int(np.sum(k * k))
     if total > PIECES_MOST:
         shrink = np.sqrt((PIECES_MOST - (len(k) - len(mapped))) / max(total - (len(k) - len(mapped)), 1))
@@ -99,13 +104,19 @@ def piece_splits(table: TextureAlbedo, tri: np.ndarray) -> np.ndarray:
 
 
 def emission_pieces(
-    table: TextureAlbedo, tri: np.ndarray, corners: np.ndarray, radiance: np.ndarray, scale: float
+    table: TextureAlbedo,
+    tri: np.ndarray,
+    corners: np.ndarray,
+    radiance: np.ndarray,
+    scale: float,
+    piece_size: float = 0.0,
 ):
     """Emitting triangles tri (t,), corners (t, 3, 3), radiance (t, 3), with each one split as
-    piece_splits says: (corners (E, 3, 3), radiance (E, 3)), a triangle's pieces in its place, a
-    piece's radiance the mean of the emitted colour over it x scale. A triangle left whole, or
-    whose pieces emit within PIECE_VARIATION of their mean, keeps its row as given."""
-    k = piece_splits(table, tri)
+    piece_splits says (pieces no smaller than piece_size): (corners (E, 3, 3), radiance (E, 3)), a
+    triangle's pieces in its place, a piece's radiance the mean of the emitted colour over it x
+    scale. A triangle left whole, or whose pieces emit within PIECE_VARIATION of their mean, keeps
+    its row as given."""
+    k = piece_splits(table, tri, corners, piece_size)
     if np.all(k == 1):
         return corners, radiance
     rows = np.ones(len(tri), np.int64)  # rows each triangle gives
@@ -123,8 +134,8 @@ def emission_pieces(
         pieces = TextureAlbedo(
             table.images, table.image_of[rep], uv, table.tint[rep], corners=paint, srgb=table.srgb
         )
-        means = triangle_means(
-            pieces, np.zeros((len(rep), 3)), pc.reshape(-1, 3, 3), k=PIECE_MEAN_SPLIT, clip=False
+        means = texel_means(
+            pieces, np.zeros((len(rep), 3)), pc.reshape(-1, 3, 3), PIECE_MEAN_SPLIT, clip=False
         )
         means = means.reshape(len(t), len(bary), 3)
         mean = means.mean(axis=1)
@@ -144,7 +155,7 @@ def emission_pieces(
 
 
 def emitter_samples(
-    surfaces: Surfaces, emitters: np.ndarray, count: int, scale: float = 1.0, pieces: bool = True
+    surfaces: Surfaces, emitters: np.ndarray, count: int, scale: float = 1.0, piece_size: float = 0.0
 ) -> EmitterSamples:
     """About `count` points over the emitting triangles, shared by every receiver point, for
     emitters of at most `count` triangles (more: light.tree.LightTree's cut).
@@ -154,7 +165,7 @@ def emitter_samples(
     triangle gets points in proportion to its power, as the centroids of its k^2 congruent
     sub-triangles.
     """
-    c, radiance = emitting_triangles(surfaces, emitters, scale, pieces)
+    c, radiance = emitting_triangles(surfaces, emitters, scale, piece_size)
     area, normal = triangle_geometry(c)
     power = area * radiance.sum(axis=1)
     if len(c) == 0 or count < 1:

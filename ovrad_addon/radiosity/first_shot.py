@@ -111,13 +111,19 @@ def first_shot_points(
     return thinned_points(points, max(MIN_FIRST_SHOT_SHARE, budget / (m * per_point)))
 
 
+def patch_piece(problem: Problem) -> float:
+    """The least piece of an image emitter (DirectLight.emission_piece_size) for light that patches
+    average: the atlas's median patch radius."""
+    return float(np.median(problem.atlas.radii)) if len(problem.atlas) else 0.0
+
+
 def picked_emitters(source: Surfaces | EmitterRules, light: DirectLight, samples: int) -> bool:
     """light has emitters, and `samples` of them are picked on power (light.direct.picked)."""
     emitters = light.emitters
     return (
         emitters is not None
         and bool(np.any(emitters))
-        and picked(source, emitters, samples, light.emission_scale, light.emission_pieces)
+        and picked(source, emitters, samples, light.emission_scale, light.emission_piece_size)
     )
 
 
@@ -158,8 +164,11 @@ def solve(
     if state is None:
         T = problem.transport
         shadow_budget = int(SHADOW_BUDGET * settings.max_rays)
-        # an image emitter's pieces: left to the bake points (a patch averages their detail away)
-        light = replace(direct_light(problem, lamps, settings, emission_scale, sky), emission_pieces=False)
+        # an image emitter's pieces no smaller than a patch: it averages finer detail away
+        light = replace(
+            direct_light(problem, lamps, settings, emission_scale, sky),
+            emission_piece_size=patch_piece(problem),
+        )
         rp = first_shot_points(T.points, light, settings, shadow_budget, problem.emitter_rules)
         points = len(rp.owner)
         samples = within_budget(settings.light_samples, points, shadow_budget, MIN_LIGHT_SAMPLES)

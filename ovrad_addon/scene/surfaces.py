@@ -11,7 +11,7 @@ from scipy.sparse.csgraph import connected_components
 
 from ..errors import OvradError
 from ..geometry import unique_rows
-from .albedo import TextureAlbedo, albedo_at, triangle_means
+from .albedo import TextureAlbedo, albedo_at, texel_means, triangle_means
 from .coverage import Coverage
 
 
@@ -35,8 +35,9 @@ class Surfaces:
     along its normal); the solve's transport uses the reflectance alone. None: 1 everywhere.
     emitted: the emitted colour of the triangles whose emission varies over them (an image or a
     colour attribute as Emission Color, its tint the strength x any constant factor), as a
-    TextureAlbedo; their `emission` is then each one's mean, and their light comes from pieces of
-    about a texel (light.emitters.emitting_triangles). None: every triangle emits a constant.
+    TextureAlbedo; their `emission` is then each one's mean over its texels (albedo.texel_means),
+    and their light comes from pieces of about a texel (light.emitters.emitting_triangles). None:
+    every triangle emits a constant.
     """
 
     vertices: np.ndarray
@@ -114,6 +115,8 @@ class Surfaces:
                 raise OvradError("emitted colour must describe every triangle (image_of -1 where none)")
             if not np.any(emitted.varies & (em.sum(axis=1) > 0)):
                 emitted = None
+            else:  # each triangle's mean over its texels (the light's total, the patches' emission)
+                em = np.maximum(texel_means(emitted, em, v[t], clip=False), 0.0)
         return Surfaces(v, t, oi, rho, em, names, rec, albedo, coverage, weight, emitted)
 
     # Computed once per Surfaces (frozen, so the arrays they derive from never change); callers
