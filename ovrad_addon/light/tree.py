@@ -190,6 +190,8 @@ class LightTree:
             F[full, _F["reach_max"]] = np.maximum.reduceat(reach, lo[full])
             I[:, 2], I[:, 3] = np.searchsorted(at, lo), np.searchsorted(at, hi)
             I[st == BELOW, 3] = I[st == BELOW, 2]  # under the cut a node has no samples of its own
+        # per level, the columns the near walk's reach test reads (centroid, spread, radius, reaches)
+        self.reach_columns = [np.ascontiguousarray(F[:, :REACH_COLUMNS]) for F, _, _ in self.levels]
 
 
 ABOVE, CUT, BELOW = 0, 1, 2  # a node's place against the cut (LightTree.state)
@@ -238,6 +240,7 @@ def _cut(levels, extra, fluxes, count: int) -> list[np.ndarray]:
 _F = {"centroid": slice(0, 3), "spread": 3, "radius": 4, "reach_min": 5, "reach_max": 6}
 _G = {"cone": 0, "area": 1, "mean_normal": slice(2, 5), "normal_moment": slice(5, 11)}  # the cut's
 
+REACH_COLUMNS = 7  # the first _F columns: what a node's reach is tested on
 _F |= {"box_mid": slice(7, 10), "box_half": slice(10, 13), "axis": slice(13, 16), "one_side": 16}
 _F["moment"] = slice(17, 23)
 _I = {"count": 0, "rep": 1, "s_lo": 2, "s_hi": 3}
@@ -298,8 +301,8 @@ def _near_block(H, rs, P, N, src: EmitterSamples, tree: LightTree, g, rays, eps,
     i, j = block, np.zeros(len(block), np.int64)
     found = []  # per level: points, irradiance (., 3), central triangle, samples' range
     held = 0  # pairs in found
-    for (F, I, power), state in zip(tree.levels, tree.state, strict=True):  # noqa: E741
-        ints = I[j]
+    for (F, I, power), state, reach in zip(tree.levels, tree.state, tree.reach_columns, strict=True):  # noqa: E741
+        ints = np.take(I, j, axis=0)
         live = ints[:, _I["count"]] > 0
         if not live.all():
             i, j, ints = i[live], j[live], ints[live]
@@ -307,18 +310,27 @@ def _near_block(H, rs, P, N, src: EmitterSamples, tree: LightTree, g, rays, eps,
             break
         if len(i) > FRONTIER_MOST and len(block) > 1:
             return None
-        f, Pi, Ni = F[j], P[i], N[i]
-        v = f[:, _F["centroid"]] - Pi
+        r, Pi = np.take(reach, j, axis=0), np.take(P, i, axis=0)
+        v = r[:, _F["centroid"]] - Pi
         d = np.sqrt(np.einsum("ij,ij->i", v, v))
-        spread, radius = f[:, _F["spread"]], f[:, _F["radius"]]
-        near = d + spread < f[:, _F["reach_min"]]
-        far = d - spread >= f[:, _F["reach_max"]]
+        spread, radius = r[:, _F["spread"]], r[:, _F["radius"]]
+        near = d + spread < r[:, _F["reach_min"]]
+        far = d - spread >= r[:, _F["reach_max"]]
         # a cut node within reach takes its sample's light back and has its whole subtree walked:
         # under it every node is near (its light comes from here, not from a sample)
         st = state[j]
         cut_near = (st == CUT) & ~far
         near |= cut_near | (st == BELOW)
         far &= st != BELOW
+        # a pair out of reach is done with (its light came from the samples): the rest of a node's
+        # row is gathered for the others only
+        stay = np.flatnonzero(~far)
+        if len(stay) < len(i):
+            i, j, ints, Pi, v, d = i[stay], j[stay], ints[stay], Pi[stay], v[stay], d[stay]
+            spread, radius, near, far, st, cut_near = (
+                x[stay] for x in (spread, radius, near, far, st, cut_near)
+            )
+        f, Ni = np.take(F, j, axis=0), np.take(N, i, axis=0)
         single = ints[:, _I["count"]] == 1
         rep = ints[:, _I["rep"]]
         height = np.einsum("ij,ij->i", v, Ni)

@@ -177,3 +177,15 @@ def test_a_triangles_mean_does_not_depend_on_the_block_it_is_taken_in(monkeypatc
     whole = texel_means(table, np.zeros((50, 3)), corners, clip=False)
     monkeypatch.setattr(albedo, "MEAN_BLOCK", 100)  # a block a triangle
     np.testing.assert_array_equal(texel_means(table, np.zeros((50, 3)), corners, clip=False), whole)
+
+
+def test_the_walks_reach_columns_are_the_trees_finished_rows():
+    # the near walk tests a node's reach on a copy of its first columns: taken once the cut has
+    # set the reaches (a copy taken before read every reach as 0 and gave a screen's wall 75 % off)
+    s = panel()
+    corners, radiance = emitting_triangles(s, np.ones(2, bool))
+    light = tree.LightTree(corners, radiance, 64)
+    assert len(light.reach_columns) == len(light.levels)
+    for reach, (F, _, _) in zip(light.reach_columns, light.levels, strict=True):
+        np.testing.assert_array_equal(reach, F[:, : tree.REACH_COLUMNS])
+    assert any(np.any(F[:, 6] > 0) for F, _, _ in light.levels)  # the reaches were set
