@@ -62,7 +62,8 @@ def points(height: float) -> np.ndarray:
 
 # (height under the panel, bound): measured 3.4 % (at x = 0.25 and 0.75, halfway up a ramp between a
 # dark and a bright texel, which pieces of 1/17 of the panel hold as steps), 1.0 % and 1.2 % (the
-# light tree's cut: 64 samples for 578 pieces); each triangle's mean colour alone: 60 %, 48 % and 18 %
+# light tree's cut: 64 samples for the lit ones of 578 pieces); each triangle's mean colour alone: 60 %,
+# 48 % and 18 %
 @pytest.mark.parametrize(("height", "bound"), [(0.03, 0.04), (0.1, 0.02), (0.3, 0.02)])
 def test_a_panel_emitting_an_image_lights_each_point_as_its_texels_do(height, bound):
     pts = points(height)
