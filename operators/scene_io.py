@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..ovrad_addon import Coverage, OvradError, Surfaces, TextureAlbedo, names, triangle_means
+from ..ovrad_addon import Coverage, OvradError, Surfaces, TextureAlbedo, names
 from . import materials, scene_model
 
 
@@ -137,24 +137,6 @@ def _lacks(data, texture, paint) -> str | None:
     return None
 
 
-def _emitted(data, term, on: np.ndarray) -> np.ndarray:
-    """(k, 3) the mean radiance each triangle `on` emits from a texture and/or paint (x strength)."""
-    tri = np.flatnonzero(on)
-    corners = data.vertices[data.triangles[tri]]
-    uv = np.zeros((len(tri), 3, 2))
-    images, image_of = (), np.full(len(tri), -1, np.int64)
-    srgb = ()
-    if term.texture is not None:
-        images, srgb = _engine_image(term.texture)
-        images, srgb, image_of = (images,), (srgb,), np.zeros(len(tri), np.int64)
-        uv = data.triangle_uvs(term.texture.uv_map)[tri]
-    paint = None
-    if term.paint is not None:
-        paint = term.paint.colours(data.triangle_colors(term.paint.attribute)[tri])
-    table = TextureAlbedo(images, image_of, uv, np.ones((len(tri), 3)), corners=paint, srgb=srgb)
-    return triangle_means(table, np.zeros((len(tri), 3)), corners, clip=False) * term.tint
-
-
 def _emitted_table(data, colors: _Colors) -> _Table:
     """The emitted colour of a mesh's slots whose emission varies (colors.emitting), over all its
     triangles (image_of -1 and no paint elsewhere): the light's pieces are cut from it."""
@@ -199,11 +181,7 @@ def _part(data, colors: _Colors) -> _Mesh:
     part = _Mesh(data.vertices, data.triangles, colors.reflectance, colors.emission)
     part.bake_weight = colors.bake_weight
     _alpha_part(part, data, colors)
-    if colors.emitting:
-        part.emission = part.emission.copy()
-        for k, term in colors.emitting:
-            on = colors.slot == k
-            part.emission[on] = np.maximum(_emitted(data, term, on), 0.0)
+    if colors.emitting:  # the engine takes their triangles' means from it (Surfaces.from_arrays)
         part.emitted = _emitted_table(data, colors)
     if colors.painted:
         part.corners = np.full((len(data.triangles), 3, 3), np.nan)

@@ -35,7 +35,8 @@ class Surfaces:
     along its normal); the solve's transport uses the reflectance alone. None: 1 everywhere.
     emitted: the emitted colour of the triangles whose emission varies over them (an image or a
     colour attribute as Emission Color, its tint the strength x any constant factor), as a
-    TextureAlbedo; their `emission` is then each one's mean over its texels (albedo.texel_means),
+    TextureAlbedo; their `emission` is then each one's mean over its texels (albedo.texel_means,
+    computed here whatever `emission` gave them),
     and their light comes from pieces of about a texel (light.emitters.emitting_triangles). None:
     every triangle emits a constant.
     """
@@ -113,10 +114,11 @@ class Surfaces:
         if emitted is not None:
             if len(emitted.image_of) != len(t):
                 raise OvradError("emitted colour must describe every triangle (image_of -1 where none)")
+            # each varying triangle's emission: its mean over its texels (the light's total, the
+            # patches' emission), whatever was given for it
+            em = np.maximum(texel_means(emitted, em, v[t], clip=False), 0.0)
             if not np.any(emitted.varies & (em.sum(axis=1) > 0)):
                 emitted = None
-            else:  # each triangle's mean over its texels (the light's total, the patches' emission)
-                em = np.maximum(texel_means(emitted, em, v[t], clip=False), 0.0)
         return Surfaces(v, t, oi, rho, em, names, rec, albedo, coverage, weight, emitted)
 
     # Computed once per Surfaces (frozen, so the arrays they derive from never change); callers
