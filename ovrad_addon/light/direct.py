@@ -193,7 +193,7 @@ class EmitterRules:
                 tree = LightTree(corners, radiance, samples)
                 self._made[key] = (tree.samples, tree)
             else:
-                self._made[key] = (emitter_samples(self.surfaces, flags, samples, scale, piece_size), None)
+                self._made[key] = (emitter_samples(corners, radiance, samples), None)
         return self._made[key]
 
 

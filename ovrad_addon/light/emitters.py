@@ -154,18 +154,16 @@ def emission_pieces(
     return out_c, out_r
 
 
-def emitter_samples(
-    surfaces: Surfaces, emitters: np.ndarray, count: int, scale: float = 1.0, piece_size: float = 0.0
-) -> EmitterSamples:
-    """About `count` points over the emitting triangles, shared by every receiver point, for
-    emitters of at most `count` triangles (more: light.tree.LightTree's cut).
+def emitter_samples(c: np.ndarray, radiance: np.ndarray, count: int) -> EmitterSamples:
+    """About `count` points over the emitting triangles c (E, 3, 3) of radiance (E, 3)
+    (emitting_triangles), shared by every receiver point, for at most `count` triangles (more:
+    light.tree.LightTree's cut).
 
     A fixed rule instead of random samples per receiver: neighbouring bake points see the same
     samples, so the result is smooth (no noise); its error is that of a midpoint rule. Each
     triangle gets points in proportion to its power, as the centroids of its k^2 congruent
     sub-triangles.
     """
-    c, radiance = emitting_triangles(surfaces, emitters, scale, piece_size)
     area, normal = triangle_geometry(c)
     power = area * radiance.sum(axis=1)
     if len(c) == 0 or count < 1:
