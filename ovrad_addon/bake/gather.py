@@ -87,7 +87,7 @@ def hemisphere_pattern(count: int, seed: int = GATHER_SEED) -> np.ndarray:
 NEAR_LIGHT_SAMPLES = 8
 
 # ... but emitters of this many triangles or more, whose samples are picked on power and whose
-# light tree takes each point's near field (light.tree.near_picked), keep this many: 8 picks stand
+# light tree takes each point's near field (light.near.near_picked), keep this many: 8 picks stand
 # farther apart and widen every near hit's near field (the large interior's 20 000-point bake at
 # 4 777 patches: 74 s at 8, 42 s at 16, 42 s at 32; 8 is 0.47 % RMS off 16 and 32, which agree)
 NEAR_PICKED_SAMPLES = 16

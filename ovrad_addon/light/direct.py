@@ -26,8 +26,9 @@ from .emitters import (
     polygon_irradiance,
 )
 from .lamps import Lamp, lamp_irradiance, shadow_origin
+from .near import near_picked
 from .sky import Sky, sky_irradiance
-from .tree import LightTree, near_picked, second_order
+from .tree import LightTree, second_order
 
 NEAR_EMITTER = 2.0  # a point closer to an emitting triangle's samples than this x their spacing
 # gets that triangle's light from its exact form factor (polygon_irradiance), not from the samples

@@ -14,6 +14,7 @@ from ovrad_addon.generate.build import build_atlas
 from ovrad_addon.geometry import subtriangle_centroids
 from ovrad_addon.light import direct, tree
 from ovrad_addon.light import lamps as lights
+from ovrad_addon.light import near as near_field
 from ovrad_addon.light.direct import DirectLight, emitter_irradiance, triangle_normals
 from ovrad_addon.light.emitters import polygon_irradiance
 from ovrad_addon.light.lamps import Lamp, lamp_irradiance
@@ -294,7 +295,7 @@ def test_points_close_to_an_emitter_of_more_triangles_than_samples_get_its_exact
     # the near points go in blocks (memory): any block size gives the same light
     near_emitter(monkeypatch, 2.0)
     whole, _ = emitter_irradiance(s, rays, np.ones(len(pt), bool), pts, nrm, 64)
-    monkeypatch.setattr(tree, "NEAR_POINTS", 7)
+    monkeypatch.setattr(near_field, "NEAR_POINTS", 7)
     blocks, _ = emitter_irradiance(s, rays, np.ones(len(pt), bool), pts, nrm, 64)
     np.testing.assert_allclose(blocks, whole, rtol=1e-12, atol=0)
 
@@ -459,7 +460,7 @@ def test_a_far_node_of_the_light_tree_is_its_contour_integral(bend, monkeypatch)
         )
         toward = rng.normal(size=(40, 3))
         toward /= np.linalg.norm(toward, axis=1, keepdims=True)
-        dist = radius * rng.uniform(tree.NEAR_EXACT * 1.01, tree.NEAR_EXACT * 1.5, 40)
+        dist = radius * rng.uniform(near_field.NEAR_EXACT * 1.01, near_field.NEAR_EXACT * 1.5, 40)
         pts = centre - dist[:, None] * toward
         nrm = rng.normal(size=(40, 3))
         nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)

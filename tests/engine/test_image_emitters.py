@@ -5,7 +5,7 @@ bilinear radiance integrated over the panel independently of the engine."""
 import numpy as np
 import pytest
 
-from ovrad_addon.light import emitters, tree
+from ovrad_addon.light import emitters, near, tree
 from ovrad_addon.light.direct import emitter_irradiance
 from ovrad_addon.light.emitters import emission_pieces, emitting_triangles, piece_splits
 from ovrad_addon.scene import albedo
@@ -154,15 +154,15 @@ def test_a_walk_too_large_for_one_block_gives_each_point_the_same_light(monkeypa
     nrm = np.tile([0.0, 0.0, 1.0], (200, 1))
     rays = make_rays(s.vertices, s.triangles)
     whole, cast = emitter_irradiance(s, rays, np.ones(2, bool), pts, nrm, 64)
-    monkeypatch.setattr(tree, "FRONTIER_MOST", 500)
-    walked, block = [], tree._near_block
+    monkeypatch.setattr(near, "FRONTIER_MOST", 500)
+    walked, block = [], near._near_block
 
     def spy(*args):
         out = block(*args)
         walked.append((len(args[-1]), out is None))
         return out
 
-    monkeypatch.setattr(tree, "_near_block", spy)
+    monkeypatch.setattr(near, "_near_block", spy)
     halves, cast_halves = emitter_irradiance(s, rays, np.ones(2, bool), pts, nrm, 64)
     np.testing.assert_array_equal(halves, whole)
     assert cast_halves == cast
