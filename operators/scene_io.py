@@ -7,8 +7,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..ovrad_addon import Coverage, OvradError, Surfaces, TextureAlbedo, names
+from ..ovrad_addon import OvradError, Surfaces, names
 from . import materials, scene_model
+from .surface_tables import ColourTable, albedo_table, coverage_table, merged_colours
 
 
 @dataclass
@@ -35,7 +36,7 @@ class _Mesh:
     has a map); corners (T, 3, 3) the painted colour at each triangle corner, NaN where not painted
     (None: nowhere); opacity (T,), alpha_maps (image name, alpha (h, w)), alpha_of (T,), alpha_uv
     (T, 3, 2): its alpha, as textures; emitted: its emitted colour where that varies, as
-    _Table (None: constant everywhere)."""
+    ColourTable (None: constant everywhere)."""
 
     vertices: np.ndarray
     triangles: np.ndarray
@@ -51,20 +52,7 @@ class _Mesh:
     alpha_of: np.ndarray | None = None
     alpha_uv: np.ndarray | None = None
     bake_weight: np.ndarray | None = None  # (T,) the share of its diffuse light a bake reports
-    emitted: _Table | None = None
-
-
-@dataclass
-class _Table:
-    """One mesh's colour from maps and paint, as a TextureAlbedo holds it over its triangles:
-    textures (image name, pixels, whether sRGB-encoded), image_of (T,), uv (T, 3, 2), tint (T, 3),
-    corners (T, 3, 3) or None."""
-
-    textures: list
-    image_of: np.ndarray
-    uv: np.ndarray
-    tint: np.ndarray
-    corners: np.ndarray | None = None
+    emitted: ColourTable | None = None
 
 
 def _read_mesh(data, warnings: list[str], cache: dict) -> _Colors:
@@ -137,11 +125,11 @@ def _lacks(data, texture, paint) -> str | None:
     return None
 
 
-def _emitted_table(data, colors: _Colors) -> _Table:
+def _emitted_table(data, colors: _Colors) -> ColourTable:
     """The emitted colour of a mesh's slots whose emission varies (colors.emitting), over all its
     triangles (image_of -1 and no paint elsewhere): the light's pieces are cut from it."""
     n = len(data.triangles)
-    table = _Table([], np.full(n, -1, np.int64), np.zeros((n, 3, 2)), np.ones((n, 3)))
+    table = ColourTable([], np.full(n, -1, np.int64), np.zeros((n, 3, 2)), np.ones((n, 3)))
     for k, term in colors.emitting:
         on = colors.slot == k
         table.tint[on] = term.tint
@@ -219,33 +207,6 @@ def _alpha_part(part: _Mesh, data, colors: _Colors) -> None:
         part.alpha_maps.append((alpha.image, alpha.pixels))
 
 
-def _coverage(parts: list[_Mesh]) -> Coverage | None:
-    """One Coverage over the triangles of all parts, alpha maps shared by name; None where every
-    surface is opaque."""
-    opacity = np.concatenate([p.opacity for p in parts])
-    if opacity.min(initial=1.0) >= 1.0 and not any(p.alpha_maps for p in parts):
-        return None
-    if not any(p.alpha_maps for p in parts):
-        return Coverage(opacity)
-    images: dict[str, int] = {}
-    pixels, alpha_of, uv = [], [], []
-    for p in parts:
-        n = len(p.triangles)
-        if not p.alpha_maps:
-            alpha_of.append(np.full(n, -1, np.int64))
-            uv.append(np.zeros((n, 3, 2)))
-            continue
-        remap = []
-        for name, px in p.alpha_maps:
-            if name not in images:
-                images[name] = len(pixels)
-                pixels.append(px)
-            remap.append(images[name])
-        alpha_of.append(np.array(remap + [-1], np.int64)[p.alpha_of])
-        uv.append(p.alpha_uv)
-    return Coverage(opacity, tuple(pixels), np.concatenate(alpha_of), np.concatenate(uv))
-
-
 def _engine_image(tex) -> tuple[np.ndarray, bool]:
     """(the pixels the engine samples, whether they are sRGB-encoded) of a MaterialTexture: an
     8-bit sRGB image's stored values, decoded after interpolation as Cycles does; else linear."""
@@ -267,64 +228,6 @@ def _material(material, warnings: list[str], cache: dict) -> materials.MaterialL
             colour = np.array(material.diffuse_color[:3], float)
             cache[key] = materials.MaterialLight(np.clip(colour, 0, 1), np.zeros(3))
     return cache[key]
-
-
-def _albedo(parts: list[_Mesh]) -> TextureAlbedo | None:
-    """One TextureAlbedo over the triangles of all parts, images shared by name; None if no map
-    and no paint."""
-    tables = [
-        None
-        if not p.textures and p.corners is None
-        else _Table(p.textures, p.image_of, p.uv, p.tint, p.corners)
-        for p in parts
-    ]
-    return _merged(tables, parts)
-
-
-def _merged(tables: list[_Table | None], parts: list[_Mesh]) -> TextureAlbedo | None:
-    """One TextureAlbedo over the triangles of all parts from each part's table (None: no map, no
-    paint and a tint of 1 there), images shared by name; None if no part has a table."""
-    if all(t is None for t in tables):
-        return None
-    images: dict[str, int] = {}
-    pixels, srgb = [], []
-    image_of, uv, tint = [], [], []
-    for p, table in zip(parts, tables, strict=True):
-        n = len(p.triangles)
-        tint.append(np.ones((n, 3)) if table is None or table.tint is None else table.tint)
-        if table is None or not table.textures:
-            image_of.append(np.full(n, -1, np.int64))
-            uv.append(np.zeros((n, 3, 2)))
-            continue
-        remap = []
-        for name, px, encoded in table.textures:
-            if name not in images:
-                images[name] = len(pixels)
-                pixels.append(px)
-                srgb.append(encoded)
-            remap.append(images[name])
-        remap = np.array(remap + [-1], np.int64)  # -1 -> -1 (the last entry)
-        image_of.append(remap[table.image_of])
-        uv.append(table.uv)
-    image_of = np.concatenate(image_of)
-    corners = None
-    if any(t is not None and t.corners is not None for t in tables):
-        corners = np.concatenate(
-            [
-                t.corners
-                if t is not None and t.corners is not None
-                else np.full((len(p.triangles), 3, 3), np.nan)
-                for p, t in zip(parts, tables, strict=True)
-            ]
-        )
-    return TextureAlbedo(
-        images=tuple(pixels),
-        image_of=image_of,
-        uv=np.concatenate(uv),
-        tint=np.concatenate(tint),
-        corners=corners,
-        srgb=tuple(srgb),
-    )
 
 
 def default_occluders(context, receivers, model=None) -> list:
@@ -399,9 +302,9 @@ def read_scene(depsgraph, receivers, occluders=(), model=None) -> SceneMeshes:
         emission=np.concatenate([p.emission for p in parts]),
         object_names=[it.name for it in items],
         receiver=np.arange(len(items)) < n_receivers,
-        albedo=_albedo(parts),
-        coverage=_coverage(parts),
-        emitted=_merged([p.emitted for p in parts], parts),
+        albedo=albedo_table(parts),
+        coverage=coverage_table(parts),
+        emitted=merged_colours([p.emitted for p in parts], parts),
         bake_weight=np.concatenate(
             [np.ones(len(p.triangles)) if p.bake_weight is None else p.bake_weight for p in parts]
         ),
